@@ -1,0 +1,277 @@
+"""Command line: ``python -m lessons list`` and ``python -m lessons run <id>|all``.
+
+Exit codes: 0 every experiment passed; 1 an experiment failed (or a simulation blew
+up unexpectedly); 2 bad input (one line on stderr, nothing written); 130 interrupted
+(Ctrl-C); 143 terminated (SIGTERM). On 1, 130 and 143 the recording and the results
+gathered so far are still finalised and written.
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import shutil
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+from . import registry
+from ._framework import _field_type, range_text, run_lesson, validate_config, write_json_atomic
+
+EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INT, EXIT_TERM = 0, 1, 2, 130, 143
+
+
+class UsageError(Exception):
+    """Bad command-line input: reported as one line, exit code 2."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # one line instead of argparse's usage + error
+        raise UsageError(f"{message} (see '{self.prog} --help')")
+
+
+class _Terminated(BaseException):
+    pass
+
+
+def _number(kind: type, flag: str, meta: dict):
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"{flag} must be {'an integer' if kind is int else 'a number'} {range_text(meta)} (got {text!r})")
+        return value
+    parse.__name__ = kind.__name__
+    return parse
+
+
+def _add_config_options(parser: argparse.ArgumentParser, config_cls) -> None:
+    group = parser.add_argument_group(f"lesson parameters ({config_cls.__name__})")
+    defaults = config_cls()
+    for f in dataclasses.fields(config_cls):
+        meta = f.metadata
+        if not meta:
+            continue
+        kind = _field_type(f)
+        flag = "--" + f.name.replace("_", "-")
+        unit = f" [{meta['unit']}]" if meta.get("unit") else ""
+        help_ = f"{meta['help']}{unit}; {range_text(meta)} (default: {getattr(defaults, f.name)})"
+        if kind is bool:
+            group.add_argument(flag, dest=f.name, action=argparse.BooleanOptionalAction, default=None, help=help_)
+        elif kind is str:
+            group.add_argument(flag, dest=f.name, default=None, metavar="NAME", help=help_)
+        else:
+            group.add_argument(flag, dest=f.name, default=None, type=_number(kind, flag, meta),
+                               metavar=kind.__name__.upper(), help=help_)
+
+
+def _run_parser(lesson_ids: list[str], lesson=None) -> argparse.ArgumentParser:
+    prog = "python -m lessons run"
+    desc = ("Run a lesson's stages: each stage prints its narrative and a table of experiments "
+            "(claim, theory, measured, tolerance, pass/fail) and logs everything to a Rerun recording.")
+    if lesson is not None:
+        desc = f"{lesson.id}: {lesson.title}. {lesson.summary}\nStages: " + "; ".join(
+            f"{i}. {s.title}" for i, s in enumerate(lesson.stages, 1))
+    p = _Parser(prog=prog, description=desc, formatter_class=argparse.RawDescriptionHelpFormatter,
+                epilog="Exit codes: 0 all experiments passed, 1 an experiment failed, 2 bad input, "
+                       "130 interrupted, 143 terminated. Environment: ELASTIC_ARCH, ELASTIC_THREADS, "
+                       "ELASTIC_FP, ELASTIC_CACHE_DIR set the defaults of --arch/--threads/precision/cache.")
+    p.add_argument("lesson", metavar="LESSON", help="lesson id (" + ", ".join(lesson_ids) + ") or 'all'")
+    p.add_argument("--stage", type=int, default=None, metavar="N",
+                   help="run only stage N (1-based; default: every stage); needs a single lesson")
+    rec = p.add_mutually_exclusive_group()
+    rec.add_argument("--record", metavar="PATH", default=None,
+                     help="write the Rerun recording to PATH (default: recordings/<id>.rrd); with 'all', "
+                          "PATH is a directory that receives <id>.rrd for each lesson")
+    rec.add_argument("--no-record", action="store_true", help="do not write a recording")
+    p.add_argument("--results", metavar="PATH", default=None,
+                   help="also write every experiment as JSON (list of {lesson, stage, claim, theory, "
+                        "measured, tolerance, passed}) to PATH")
+    p.add_argument("--threads", type=int, default=None, metavar="N",
+                   help="CPU threads for Taichi (default: 2, or $ELASTIC_THREADS)")
+    p.add_argument("--arch", default=None, metavar="NAME",
+                   help="Taichi backend: cpu, cuda or vulkan (default: cpu, or $ELASTIC_ARCH)")
+    p.add_argument("--view", action="store_true", help="open the recording in the Rerun viewer afterwards")
+    p.add_argument("--quiet", action="store_true", help="print only the tables, not the narratives and progress")
+    if lesson is not None:
+        _add_config_options(p, lesson.config)
+    return p
+
+
+def _main_parser(lesson_ids: list[str]) -> argparse.ArgumentParser:
+    p = _Parser(prog="python -m lessons",
+                description="Elastic-simulation lessons in Taichi, recorded with Rerun.",
+                epilog="Commands:\n  list              one line per lesson: id, title, stages\n"
+                       "  run LESSON|all    run lessons (see 'python -m lessons run LESSON --help' for "
+                       "the lesson's parameters)\n\nLessons: " + ", ".join(lesson_ids),
+                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("command", choices=["list", "run"], help="list or run")
+    return p
+
+
+def _list(out) -> int:
+    for lesson in registry.all_lessons():
+        print(f"{lesson.id:22s} {lesson.title}  [{len(lesson.stages)} stages: "
+              + "; ".join(s.title for s in lesson.stages) + "]", file=out)
+    return EXIT_OK
+
+
+def _record_paths(args, chosen) -> dict:
+    if args.no_record:
+        return {l.id: None for l in chosen}
+    if args.record is None:
+        return {l.id: Path("recordings") / f"{l.id}.rrd" for l in chosen}
+    if len(chosen) > 1:
+        return {l.id: Path(args.record) / f"{l.id}.rrd" for l in chosen}
+    return {chosen[0].id: Path(args.record)}
+
+
+def _check_output(flag: str, path: Path) -> None:
+    from engine.recorder import check_writable  # imports rerun; only when recording
+    try:
+        check_writable(path)
+    except OSError as exc:
+        raise UsageError(f"{flag} {path}: cannot write there ({exc.strerror or exc}); "
+                         f"choose a writable path{' or --no-record' if flag == '--record' else ''}")
+
+
+def _check_results_path(path: Path) -> None:
+    parent = path.parent if str(path.parent) else Path(".")
+    if path.is_dir() or not parent.is_dir() or not os.access(parent, os.W_OK):
+        raise UsageError(f"--results {path}: cannot write there (the directory must exist and be writable)")
+
+
+def _view(path: Path | None, out) -> None:
+    if path is None:
+        print("--view: nothing to show (--no-record was given)", file=out)
+        return
+    viewer = shutil.which("rerun") or str(Path(sys.executable).with_name("rerun"))
+    if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        print(f"--view: cannot start the Rerun viewer: no display (DISPLAY is not set). "
+              f"Open the recording on a machine with a screen: rerun {path}", file=out)
+        return
+    try:
+        subprocess.Popen([viewer, str(path)], stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                         stderr=subprocess.DEVNULL, start_new_session=True)
+        print(f"--view: opened the Rerun viewer on {path}", file=out)
+    except OSError as exc:
+        print(f"--view: cannot start the Rerun viewer ({exc}); open it later with: rerun {path}", file=out)
+
+
+def run(argv: list[str], out=sys.stdout, err=sys.stderr) -> int:
+    lessons_ = registry.all_lessons()
+    ids = [l.id for l in lessons_]
+    by_id = {l.id: l for l in lessons_}
+    lesson_arg = next((a for a in argv if not a.startswith("-")), None)
+    lesson = by_id.get(lesson_arg)
+    parser = _run_parser(ids, lesson)
+    if lesson_arg is None and not any(a in ("-h", "--help") for a in argv):
+        raise UsageError("LESSON is required: one of " + ", ".join(ids) + ", or all")
+    if lesson_arg is not None and lesson is None and lesson_arg != "all":
+        raise UsageError(f"LESSON must be one of {', '.join(ids)}, or all (got {lesson_arg!r})")
+    args = parser.parse_args(argv)
+
+    chosen = lessons_ if args.lesson == "all" else [lesson]
+    overrides = {f.name: getattr(args, f.name) for f in dataclasses.fields(lesson.config)
+                 if getattr(args, f.name, None) is not None} if lesson else {}
+    if args.stage is not None:
+        if len(chosen) != 1:
+            raise UsageError("--stage needs a single lesson, not 'all'")
+        if not 1 <= args.stage <= len(lesson.stages):
+            raise UsageError(f"--stage must be in 1..{len(lesson.stages)} for {lesson.id} (got {args.stage})")
+
+    # Validate everything before any kernel runs or any file is written.
+    configs = {}
+    try:
+        for l in chosen:
+            cfg = l.config(**overrides) if l is lesson else l.config()
+            validate_config(cfg)
+            if l.validate is not None:
+                l.validate(cfg)
+            configs[l.id] = cfg
+    except ValueError as exc:  # ParameterError, mesh/model errors: bad input, not a crash
+        raise UsageError(str(exc)) from None
+    from engine import runtime
+    try:
+        runtime.init(arch=args.arch, threads=args.threads)
+    except runtime.RuntimeConfigError as exc:
+        raise UsageError(str(exc)) from None
+
+    paths = _record_paths(args, chosen)
+    for p in paths.values():
+        if p is not None:
+            _check_output("--record", p)
+    if args.results:
+        _check_results_path(Path(args.results))
+
+    results: list[dict] = []
+    all_passed = True
+    finished_paths = []
+    try:
+        for l in chosen:
+            rec = _make_recorder(l, paths[l.id])
+            try:
+                ok = run_lesson(l, configs[l.id], rec, [args.stage] if args.stage else None,
+                                out=out, err=err, quiet=args.quiet, results=results)
+            finally:
+                final = rec.close()
+            if final is not None:
+                finished_paths.append(final)
+                print(f"\nrecording: {final}  (open with: rerun {final})", file=out)
+            all_passed &= ok
+    finally:
+        if args.results:
+            write_json_atomic(args.results, results)
+    n_fail = sum(not r["passed"] for r in results)
+    print(f"\n{len(results) - n_fail} of {len(results)} experiments passed"
+          + ("" if n_fail == 0 else f"; {n_fail} FAILED"), file=out)
+    if args.view:
+        for p in finished_paths or [None]:
+            _view(p, out)
+    return EXIT_OK if all_passed else EXIT_FAILED
+
+
+def _make_recorder(lesson, path):
+    from engine.recorder import NullRecorder, Recorder, lesson_blueprint
+    if path is None:
+        return NullRecorder()
+    blueprint = lesson_blueprint([(i, s.title) for i, s in enumerate(lesson.stages, 1)], lesson.view)
+    return Recorder(path, "elastic_lessons_" + lesson.id.replace("-", "_"), blueprint=blueprint)
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+
+    def on_term(signum, frame):
+        raise _Terminated()
+
+    previous = signal.signal(signal.SIGTERM, on_term)
+    try:
+        lessons_ = registry.all_lessons()
+        ids = [l.id for l in lessons_]
+        if not argv or argv[0] in ("-h", "--help"):
+            _main_parser(ids).print_help()
+            return EXIT_OK if argv else EXIT_USAGE
+        command, rest = argv[0], argv[1:]
+        if command == "list":
+            if rest:
+                raise UsageError(f"'list' takes no arguments (got {' '.join(rest)})")
+            return _list(sys.stdout)
+        if command == "run":
+            return run(rest)
+        raise UsageError(f"command must be 'list' or 'run' (got {command!r}); see 'python -m lessons --help'")
+    except SystemExit as exc:  # --help
+        return int(exc.code or 0)
+    except UsageError as exc:
+        print(f"python -m lessons: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print("\ninterrupted: the recording and the results so far were written", file=sys.stderr)
+        return EXIT_INT
+    except _Terminated:
+        print("\nterminated: the recording and the results so far were written", file=sys.stderr)
+        return EXIT_TERM
+    finally:
+        signal.signal(signal.SIGTERM, previous)

@@ -1,0 +1,27 @@
+"""Finds the lessons: every module in this package that defines ``LESSON``."""
+from __future__ import annotations
+
+import importlib
+import pkgutil
+
+import lessons
+from ._framework import Lesson
+
+
+def all_lessons() -> list[Lesson]:
+    found = []
+    for info in pkgutil.iter_modules(lessons.__path__):
+        if info.name.startswith("_") or info.name in ("registry", "cli"):
+            continue
+        module = importlib.import_module(f"lessons.{info.name}")
+        lesson = getattr(module, "LESSON", None)
+        if isinstance(lesson, Lesson):
+            found.append(lesson)
+    return sorted(found, key=lambda l: (l.order, l.id))
+
+
+def get(lesson_id: str) -> Lesson:
+    lessons_ = {l.id: l for l in all_lessons()}
+    if lesson_id not in lessons_:
+        raise KeyError(lesson_id)
+    return lessons_[lesson_id]

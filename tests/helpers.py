@@ -1,0 +1,34 @@
+"""Test helpers: run a lesson stage headless, run the CLI in a subprocess."""
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from engine.recorder import NullRecorder
+from lessons._framework import StageContext
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def run_stage(lesson, index, rec=None, **overrides):
+    """Run one stage of a lesson without printing; returns {claim: Experiment}."""
+    cfg = lesson.config(**overrides)
+    ctx = StageContext(lesson, cfg, rec or NullRecorder(), index, quiet=True)
+    if rec is not None:
+        rec.stage(index, lesson.stages[index - 1].title, lesson.stages[index - 1].narrative)
+    experiments = lesson.stages[index - 1].run(ctx)
+    return {e.claim: e for e in experiments}
+
+
+def assert_all_passed(experiments):
+    failed = [f"{e.claim}: theory {e.theory!r}, measured {e.measured!r}, {e.tolerance_text()}"
+              for e in experiments.values() if not e.passed]
+    assert not failed, "\n".join(failed)
+
+
+def cli(*args, cwd, timeout=300, env=None):
+    """Run ``python -m lessons ARGS`` in ``cwd``; returns CompletedProcess (text)."""
+    full_env = dict(os.environ, PYTHONPATH=str(ROOT), ELASTIC_CACHE_DIR=str(ROOT / ".ti_cache"))
+    full_env.update(env or {})
+    return subprocess.run([sys.executable, "-m", "lessons", *args], cwd=cwd, capture_output=True,
+                          text=True, timeout=timeout, env=full_env)
