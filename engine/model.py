@@ -1,0 +1,400 @@
+"""Static model description (topology, rest state, masses, pins, energies) and time-varying state.
+
+Following the Model/State split of Warp: a :class:`Model` is built once from numpy arrays,
+validated, and turned into Taichi ndarrays; a :class:`State` holds what changes in time
+(positions ``x``, velocities ``v``, time ``t``).  Integrators only ever talk to
+``model.energies`` through the :class:`Energy` protocol and never know which energies exist.
+
+Potential energy (lecture notes, "Potential energy" slides): the total is the sum of the
+elastic energies plus the gravity potential ``W_g = -sum_i m_i g . x_i`` over free vertices,
+and every force is its negative gradient, ``f = -dW/dx``.
+
+Pins: a pinned vertex has inverse mass 0, never gets a force and never moves.
+
+Nothing here touches Taichi at import time; call :func:`engine.runtime.init` first.
+"""
+
+from typing import NamedTuple, Sequence
+
+import numpy as np
+import taichi as ti
+
+from engine import runtime
+
+# Kernel argument annotations (plain annotation objects; creating them needs no ti.init).
+vec3_array = ti.types.ndarray(dtype=ti.math.vec3, ndim=1)
+scalar_array = ti.types.ndarray(ndim=1)
+
+
+class ModelError(ValueError):
+    """Invalid model input; the message is one line and names the offending element."""
+
+
+def float_dtype() -> type:
+    """The numpy float type matching Taichi's ``default_fp`` (f64 normally, f32 for benchmarks)."""
+    info = runtime.current()
+    if info is None:
+        raise RuntimeError("Taichi is not initialised: call engine.runtime.init() before building a Model")
+    return np.float64 if info.fp == 64 else np.float32
+
+
+def vec3_ndarray(n: int, values: np.ndarray | None = None):
+    """A ``ti.ndarray`` of ``n`` vec3 (default_fp), zero-filled or copied from ``values`` (n, 3)."""
+    a = ti.ndarray(dtype=ti.math.vec3, shape=max(int(n), 1))
+    if values is None:
+        a.from_numpy(np.zeros((max(int(n), 1), 3), dtype=float_dtype()))
+    else:
+        a.from_numpy(np.ascontiguousarray(values, dtype=float_dtype()).reshape(-1, 3))
+    return a
+
+
+def scalar_ndarray(values: np.ndarray):
+    """A ``ti.ndarray`` of default_fp scalars copied from ``values``."""
+    values = np.ascontiguousarray(values, dtype=float_dtype()).reshape(-1)
+    a = ti.ndarray(dtype=float, shape=max(values.size, 1))
+    if values.size:
+        a.from_numpy(values)
+    return a
+
+
+def int_ndarray(values: np.ndarray):
+    """A ``ti.ndarray`` of i32 copied from ``values``."""
+    values = np.ascontiguousarray(values, dtype=np.int32).reshape(-1)
+    a = ti.ndarray(dtype=ti.i32, shape=max(values.size, 1))
+    if values.size:
+        a.from_numpy(values)
+    return a
+
+
+# --------------------------------------------------------------------------------------------
+# Kernels shared by the model and the integrators
+# --------------------------------------------------------------------------------------------
+
+@ti.kernel
+def fill_vec3(a: vec3_array, value: ti.math.vec3):
+    for i in range(a.shape[0]):
+        a[i] = value
+
+
+@ti.kernel
+def zero_vec3(a: vec3_array):
+    for i in range(a.shape[0]):
+        a[i] = ti.math.vec3(0.0)
+
+
+@ti.kernel
+def gravity_energy_kernel(x: vec3_array, mass: scalar_array, inv_mass: scalar_array,
+                          g: ti.math.vec3) -> float:
+    # W_g = -sum_{free i} m_i g . x_i
+    W = 0.0
+    for i in range(x.shape[0]):
+        if inv_mass[i] > 0.0:
+            W -= mass[i] * g.dot(x[i])
+    return W
+
+
+@ti.kernel
+def finish_forces_kernel(f: vec3_array, mass: scalar_array, inv_mass: scalar_array, g: ti.math.vec3):
+    # f_i += m_i g for free vertices (gravity = -dW_g/dx_i); pinned vertices get zero force
+    for i in range(f.shape[0]):
+        if inv_mass[i] > 0.0:
+            f[i] += mass[i] * g
+        else:
+            f[i] = ti.math.vec3(0.0)
+
+
+@ti.kernel
+def zero_pinned_kernel(a: vec3_array, inv_mass: scalar_array):
+    for i in range(a.shape[0]):
+        if inv_mass[i] == 0.0:
+            a[i] = ti.math.vec3(0.0)
+
+
+@ti.kernel
+def copy_vec3(src: vec3_array, dst: vec3_array):
+    for i in range(src.shape[0]):
+        dst[i] = src[i]
+
+
+# --------------------------------------------------------------------------------------------
+# Energy protocol
+# --------------------------------------------------------------------------------------------
+
+class Energy:
+    """Protocol for an elastic energy W(x) over the model's vertices.
+
+    Energy is the single source of truth: forces are ``-grad W`` and implicit integrators
+    use the Hessian of the same W.  Subclasses implement the first four methods with
+    Taichi kernels; ``x``, ``dx``, ``f``, ``out`` are ``ti.ndarray`` of vec3 with one entry
+    per model vertex.  Pins are handled by the model/integrators, not by energies.
+    """
+
+    name = "energy"
+    n_vertices: int = 0
+
+    def energy(self, x) -> float:
+        """W(x)."""
+        raise NotImplementedError
+
+    def add_forces(self, x, f) -> None:
+        """f += -dW/dx (deterministic: no parallel float atomics)."""
+        raise NotImplementedError
+
+    def add_hessian_product(self, x, dx, out, psd: bool = True) -> None:
+        """out += H(x) dx, with H the exact Hessian or (psd=True) its PSD projection."""
+        raise NotImplementedError
+
+    def hessian_blocks(self, x, psd: bool = True):
+        """Per-element Hessian blocks (energy-specific layout; documented by the subclass)."""
+        raise NotImplementedError
+
+    def add_hessian_diagonal(self, x, diag, psd: bool = True) -> None:
+        """diag[i] += H_ii (3x3 vertex diagonal blocks, a mat3 ndarray) for block-Jacobi."""
+        raise NotImplementedError(f"{type(self).__name__} has no Hessian diagonal")
+
+    def gershgorin_row_sums(self, x) -> np.ndarray:
+        """(n, 3) numpy array: sum_j |H_(i,a),j| of the exact Hessian at x (for the CFL bound)."""
+        raise NotImplementedError(f"{type(self).__name__} has no Gershgorin bound")
+
+    def dense_hessian(self, x, psd: bool = True) -> np.ndarray:
+        """Dense (3n, 3n) Hessian in numpy, for tests on small models.
+
+        Default: one Hessian-vector product per unit vector (3n products)."""
+        n = self.n_vertices
+        H = np.zeros((3 * n, 3 * n))
+        dx = vec3_ndarray(n)
+        out = vec3_ndarray(n)
+        for col in range(3 * n):
+            e = np.zeros((n, 3))
+            e.reshape(-1)[col] = 1.0
+            dx.from_numpy(e.astype(float_dtype()))
+            zero_vec3(out)
+            self.add_hessian_product(x, dx, out, psd)
+            H[:, col] = out.to_numpy().reshape(-1)
+        return H
+
+
+# --------------------------------------------------------------------------------------------
+# State
+# --------------------------------------------------------------------------------------------
+
+class StateArrays(NamedTuple):
+    """numpy copies of a :class:`State`."""
+    x: np.ndarray
+    v: np.ndarray
+    t: float
+
+
+class State:
+    """Time-varying state: positions ``x`` (m), velocities ``v`` (m/s), time ``t`` (s)."""
+
+    def __init__(self, x, v, t: float = 0.0):
+        self.x = x
+        self.v = v
+        self.t = float(t)
+
+    @property
+    def n(self) -> int:
+        return self.x.shape[0]
+
+    @classmethod
+    def from_numpy(cls, x: np.ndarray, v: np.ndarray | None = None, t: float = 0.0) -> "State":
+        x = np.asarray(x, dtype=float)
+        if x.ndim != 2 or x.shape[1] != 3:
+            raise ModelError(f"state positions must have shape (n, 3), got {x.shape}")
+        if v is None:
+            v = np.zeros_like(x)
+        v = np.asarray(v, dtype=float)
+        if v.shape != x.shape:
+            raise ModelError(f"state velocities must have shape {x.shape}, got {v.shape}")
+        return cls(vec3_ndarray(len(x), x), vec3_ndarray(len(x), v), t)
+
+    def numpy(self) -> StateArrays:
+        return StateArrays(self.x.to_numpy().astype(np.float64), self.v.to_numpy().astype(np.float64), self.t)
+
+    def assign(self, x: np.ndarray | None = None, v: np.ndarray | None = None, t: float | None = None) -> None:
+        """Overwrite positions and/or velocities from numpy arrays (n, 3)."""
+        if x is not None:
+            self.x.from_numpy(np.ascontiguousarray(x, dtype=float_dtype()).reshape(-1, 3))
+        if v is not None:
+            self.v.from_numpy(np.ascontiguousarray(v, dtype=float_dtype()).reshape(-1, 3))
+        if t is not None:
+            self.t = float(t)
+
+    def copy(self) -> "State":
+        s = State(vec3_ndarray(self.n), vec3_ndarray(self.n), self.t)
+        copy_vec3(self.x, s.x)
+        copy_vec3(self.v, s.v)
+        return s
+
+
+# --------------------------------------------------------------------------------------------
+# Model
+# --------------------------------------------------------------------------------------------
+
+def _as_vertex_array(name: str, value, n: int) -> np.ndarray:
+    arr = np.asarray(value, dtype=np.float64)
+    if arr.ndim == 0:
+        return np.full(n, float(arr))
+    if arr.shape != (n,):
+        raise ModelError(f"{name} must be a scalar or have shape ({n},), got {arr.shape}")
+    return arr.copy()
+
+
+class Model:
+    """Static description of a particle system: rest positions, lumped masses, pins, gravity
+    and a list of :class:`Energy` objects.
+
+    Parameters (SI units):
+      X        (n, 3) rest positions [m]
+      mass     scalar or (n,) lumped masses [kg]; must be > 0 for free vertices
+      pinned   boolean mask (n,) or list of vertex indices that never move
+      gravity  (3,) acceleration [m/s^2], default zero
+      energies energy objects (see :class:`Energy`), more via :meth:`add_energy`
+    """
+
+    def __init__(self, X: np.ndarray, mass=1.0, pinned=None, gravity=None,
+                 energies: Sequence[Energy] = ()):
+        X, m, pinned_mask, g = self.check_inputs(X, mass, pinned, gravity)
+        n = len(X)
+        self.n = n
+        self.X = X.copy()
+        self.X.setflags(write=False)
+        self.mass = m
+        self.pinned = pinned_mask
+        self.free = ~pinned_mask
+        self.gravity = g
+        self.gravity_vec = ti.math.vec3(*g)  # kernel argument, built once
+        inv = np.where(pinned_mask, 0.0, 1.0 / np.where(m > 0, m, 1.0))
+        # Taichi arrays
+        self.mass_nd = scalar_ndarray(m)
+        self.inv_mass_nd = scalar_ndarray(inv)
+        self.X_nd = vec3_ndarray(n, X)
+        self.energies: list[Energy] = []
+        self._work: dict[str, object] = {}
+        for e in energies:
+            self.add_energy(e)
+
+    @staticmethod
+    def check_inputs(X, mass=1.0, pinned=None, gravity=None):
+        """Validate in numpy (before any kernel runs); returns (X, mass, pinned_mask, gravity).
+        Raises ModelError with a one-line message naming the offending vertex/pin."""
+        X = np.asarray(X, dtype=np.float64)
+        if X.ndim != 2 or X.shape[1] != 3:
+            raise ModelError(f"rest positions X must have shape (n, 3), got {X.shape}")
+        n = len(X)
+        if n == 0:
+            raise ModelError("model has no vertices")
+        bad = np.flatnonzero(~np.isfinite(X).all(axis=1))
+        if bad.size:
+            raise ModelError(f"vertex {bad[0]} has a non-finite rest position {X[bad[0]].tolist()}")
+
+        pinned_mask = np.zeros(n, dtype=bool)
+        if pinned is not None:
+            p = np.asarray(pinned)
+            if p.dtype == bool:
+                if p.shape != (n,):
+                    raise ModelError(f"pinned mask must have shape ({n},), got {p.shape}")
+                pinned_mask = p.copy()
+            else:
+                p = p.reshape(-1)
+                if p.size and not np.issubdtype(p.dtype, np.integer):
+                    raise ModelError(f"pinned must be a boolean mask or integer vertex indices, got dtype {p.dtype}")
+                out = np.flatnonzero((p < 0) | (p >= n))
+                if out.size:
+                    raise ModelError(f"pin index {int(p[out[0]])} is out of range 0..{n - 1}")
+                pinned_mask[p.astype(np.int64)] = True
+
+        m = _as_vertex_array("mass", mass, n)
+        bad = np.flatnonzero(~np.isfinite(m) | (m < 0))
+        if bad.size:
+            raise ModelError(f"vertex {bad[0]} has invalid mass {float(m[bad[0]])!r} (must be finite and >= 0)")
+        bad = np.flatnonzero(~pinned_mask & (m <= 0))
+        if bad.size:
+            raise ModelError(f"vertex {bad[0]} is free but has mass {float(m[bad[0]])!r} (must be > 0; pin it or give it mass)")
+
+        g = np.zeros(3) if gravity is None else np.asarray(gravity, dtype=np.float64).reshape(-1)
+        if g.shape != (3,) or not np.isfinite(g).all():
+            raise ModelError(f"gravity must be 3 finite numbers, got {gravity!r}")
+        return X, m, pinned_mask, g
+
+    # -- construction helpers ----------------------------------------------------------------
+    @classmethod
+    def from_springs(cls, X: np.ndarray, edges: np.ndarray, k=None, c=None, L=None, mass=1.0,
+                     pinned=None, gravity=None) -> "Model":
+        """A spring network.  Give exactly one of
+          k  spring constant(s) of the notes' 1D spring W = 1/2 k (l/L - 1)^2 L  -> c = k L
+          c  per-edge coefficient(s) directly, e.g. c = E A_e for area/volume springs.
+        L: rest lengths (m,), default |X_i - X_j|."""
+        from engine.energies.springs import SpringEnergy
+
+        X = cls.check_inputs(X, mass, pinned, gravity)[0]
+        edges, L, c, name = SpringEnergy.prepare(X, edges, k=k, c=c, L=L)  # numpy checks before any kernel
+        model = cls(X, mass=mass, pinned=pinned, gravity=gravity)
+        model.add_energy(SpringEnergy(model.n, edges, L, c, X=X, coef_name=name))
+        return model
+
+    def add_energy(self, energy: Energy) -> Energy:
+        if getattr(energy, "n_vertices", self.n) != self.n:
+            raise ModelError(f"{energy.name} energy is defined on {energy.n_vertices} vertices, model has {self.n}")
+        self.energies.append(energy)
+        return energy
+
+    @property
+    def springs(self):
+        """The first spring energy, or None."""
+        from engine.energies.springs import SpringEnergy
+        return next((e for e in self.energies if isinstance(e, SpringEnergy)), None)
+
+    # -- state and work arrays ---------------------------------------------------------------
+    def make_state(self, x: np.ndarray | None = None, v: np.ndarray | None = None, t: float = 0.0) -> State:
+        """A State at positions x (default: rest X) with velocities v (default 0; pinned forced 0)."""
+        x = self.X if x is None else np.asarray(x, dtype=np.float64)
+        v = np.zeros((self.n, 3)) if v is None else np.array(v, dtype=np.float64)
+        if x.shape != (self.n, 3) or v.shape != (self.n, 3):
+            raise ModelError(f"state arrays must have shape ({self.n}, 3), got x {x.shape}, v {v.shape}")
+        v[self.pinned] = 0.0
+        return State.from_numpy(x, v, t)
+
+    def work_vec3(self, name: str):
+        """A per-model scratch vec3 ndarray, allocated once (integrators use these)."""
+        a = self._work.get(name)
+        if a is None:
+            a = self._work[name] = vec3_ndarray(self.n)
+        return a
+
+    # -- energies and forces -----------------------------------------------------------------
+    def elastic_energy(self, x) -> float:
+        return float(sum(e.energy(x) for e in self.energies))
+
+    def gravity_energy(self, x) -> float:
+        if not self.gravity.any():
+            return 0.0
+        return float(gravity_energy_kernel(x, self.mass_nd, self.inv_mass_nd, self.gravity_vec))
+
+    def potential_energy(self, x) -> float:
+        """All energies plus the gravity potential -sum m g . x (free vertices)."""
+        return self.elastic_energy(x) + self.gravity_energy(x)
+
+    def add_elastic_forces(self, x, f) -> None:
+        """f += -grad of every energy (no gravity, no pin handling)."""
+        for e in self.energies:
+            e.add_forces(x, f)
+
+    def forces(self, x, f) -> None:
+        """f = -grad(potential): zero f, add all energies, add m g; pinned vertices get zero."""
+        zero_vec3(f)
+        self.add_elastic_forces(x, f)
+        finish_forces_kernel(f, self.mass_nd, self.inv_mass_nd, self.gravity_vec)
+
+    def add_hessian_product(self, x, dx, out, psd: bool = True) -> None:
+        """out += H dx summed over all energies (gravity is linear: no Hessian). No pin handling."""
+        for e in self.energies:
+            e.add_hessian_product(x, dx, out, psd)
+
+    def dense_hessian(self, x, psd: bool = True) -> np.ndarray:
+        """Dense (3n, 3n) Hessian of the potential (tests, small models only)."""
+        H = np.zeros((3 * self.n, 3 * self.n))
+        for e in self.energies:
+            H += e.dense_hessian(x, psd)
+        return H
