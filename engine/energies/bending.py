@@ -1,0 +1,787 @@
+"""Dihedral-angle bending energy on hinges (pairs of triangles sharing an edge).
+
+Sources
+-------
+* Lecture notes, slides "Bending energy" .. "Bending forces":
+  W_bend = int 1/2 B kappa^2 ~ sum_e 1/2 B_e kappa_e^2 A_e with the edge curvature estimate
+  1/(2R) ~ theta_e / (h0 + h1) and A_e = |e| (h0 + h1) / 6, so
+
+      W_bend = sum_e 1/2 B_e |e|^2 / (36 A_e) theta_e^2                                  (N1)
+
+  "Treat all terms except theta as constant (measured from initial mesh)".
+* Grinspun, Hirani, Desbrun, Schroeder, "Discrete shells", SCA 2003, eq. (3):
+  E_B = sum_e (theta_e - theta_bar_e)^2 |e| / h_e,  h_e = (h0 + h1)/6, i.e. weight
+  3 |e|^2 / (A0 + A1).
+* Bridson, Marino, Fedkiw, "Simulation of clothing with folds and wrinkles", SCA 2003,
+  section 4 (bending): F_i = k |E|^2 / (|N1| + |N2|) sin(theta/2) u_i with the u_1..u_4
+  vectors reproduced literally by :func:`bridson_u_kernel`.
+
+Energy per hinge (the single source of truth: forces and Hessians below are its
+derivatives), with d = theta - theta_bar wrapped into [-pi, pi):
+
+    notes, discrete-shells:   W_e = 1/2 k_e d^2                                          (W1)
+    bridson:                  W_e = 4 k_e (1 - cos(d/2)) = 8 k_e sin^2(d/4)              (W2)
+                              dW/dtheta = 2 k_e sin(d/2),  d2W/dtheta2 = k_e cos(d/2)
+
+Per-hinge stiffness k_e, all rest quantities (|e|, wing heights h0 h1, wing areas A0 A1
+with A0 + A1 = |e| (h0 + h1) / 2):
+
+    notes, bridson:    k_e = B |e|^2 / (36 A_e) = B |e| / (6 (h0 + h1))                   (K1)
+    discrete-shells:   k_e = B |e|^2 / (4 (A0 + A1)) = B |e| / (2 (h0 + h1)) = 3 x (K1)  (K2)
+
+(K2) is Discrete Shells' weight with its constant chosen so that B is the same bending
+modulus: on a cylinder of radius R it converges to the continuum 1/2 B (1/(2R))^2 * area,
+while (K1) converges to one third of it (only the edges across the bend carry curvature
+but A_e gives each edge a third of its triangles' area; DESIGN section 6).
+
+The "bridson" variant: (W2) has the force  -dW/dx = 2 k_e sin(d/2) u  with u = -grad theta
+equal to Bridson's u_1..u_4.  With theta_bar = 0 and k_e from (K1) that is exactly Bridson's
+elastic bending force  k |E|^2/(|N1|+|N2|) sin(theta/2) u_i  with his k = B/3 (because
+|N1| + |N2| = |e| (h0 + h1)) and the coefficient |E|^2/(|N1|+|N2|) frozen at its rest value
+(the notes' rule: everything but theta measured on the rest mesh); so frozen, Bridson's
+force is exactly -grad of (W2).
+For a rest angle we use sin((theta - theta_bar)/2) (Bridson writes sin(theta/2) -
+sin(theta_bar/2); the two agree to first order in the deviation).  Compared with the
+notes' force k_e theta u, the force ratio at theta_bar = 0 is
+
+    2 sin(theta/2) / theta = 1 - theta^2/24 + theta^4/1920 - ...                          (R1)
+
+(the same small-angle stiffness: d2W/dtheta2 = k_e at d = 0).
+
+Angle and gradient
+------------------
+Hinge convention (engine/mesh.py): row [v0, v1, w0, w1]; edge e = x_v1 - x_v0, triangle
+t0 = (v0, v1, w0), t1 = (v1, v0, w1), both in the mesh's orientation.  With
+N0 = e x (x_w0 - x_v0), N1 = (x_v0 - x_v1) x (x_w1 - x_v1) = (x_w1 - x_v0) x e:
+
+    theta = atan2( e_hat . (N0 x N1), N0 . N1 )   in (-pi, pi]                            (A1)
+
+(atan2 of unnormalised sine and cosine parts: no acos, accurate near 0 and near +-pi).
+SIGN: theta = 0 for a flat hinge, theta > 0 where the surface is convex on the side its
+normals point to (e.g. every edge of a convex closed surface with outward normals, or a
+cylinder with outward normals), theta < 0 where it is concave.  Moving a wing along its own
+normal decreases theta.
+
+Gradient (h0 = |N0|/|e|, h1 = |N1|/|e|, n = N/|N|, t_i = (x_wi - x_v0).e / |e|^2 the
+position of the wing's foot along the edge):
+
+    dtheta/dx_w0 = -n0/h0 = -|e| N0/|N0|^2,    dtheta/dx_w1 = -n1/h1 = -|e| N1/|N1|^2     (G1)
+    dtheta/dx_v1 = -t0 dtheta/dx_w0 - t1 dtheta/dx_w1                                      (G2)
+    dtheta/dx_v0 = -(1 - t0) dtheta/dx_w0 - (1 - t1) dtheta/dx_w1                          (G3)
+
+The four sum to zero; Bridson's u_1..u_4 (x1 = w0, x2 = w1, x3 = v0, x4 = v1) are exactly
+-grad theta.
+
+Hessian of theta: theta is a function of the three difference vectors e, a0 = x_w0 - x_v0,
+a1 = x_w1 - x_v0.  In those variables G_a0 = -|e| N0/|N0|^2, G_a1 = -|e| N1/|N1|^2,
+G_e = -t0 G_a0 - t1 G_a1, and with d(N/|N|^2) = (I - 2 n n^T)/|N|^2 dN,
+dN0 = [e]x da0 - [a0]x de, dN1 = -[e]x da1 + [a1]x de, the nine 3x3 blocks follow by the
+product rule (see :func:`_theta_hessian_parts`); the 12x12 Hessian is P^T H9 P with P the
+map x -> (e, a0, a1).  Checked against finite differences in tests/test_bending_energy.py.
+
+W Hessian:  exact  H = W'' g g^T + W' Hess(theta);  Gauss-Newton (psd)  H = max(W'', 0) g g^T
+(g = grad theta).  At theta = theta_bar (W' = 0) the two coincide.
+
+Hessian block layout: ``blocks[h, 4*a + b]`` (mat3) is d2W_h/dx_a dx_b for slots a, b in
+[v0, v1, w0, w1] order.
+
+Parallel assembly without float atomics: kernel 1 writes each hinge's four vectors into an
+(h, 4) vec3 ndarray in parallel; kernel 2 gathers per vertex over a CSR incidence
+(vertex -> entries 4*hinge + slot, in increasing hinge order), so results are
+deterministic.  The energy total is a parallel reduction (not bitwise reproducible across
+thread counts; the per-hinge values are).
+
+Energy density for colouring (:meth:`BendingEnergy.energy_density`): per vertex
+rho_v = sum_{e ni v} W_e / sum_{e ni v} A_e (J/m^2), the A_e-weighted mean over incident
+hinges of the hinge densities W_e/A_e, A_e = |e| (h0 + h1) / 6 on the rest mesh.  On a
+uniformly bent regular mesh it equals total energy / total area at interior vertices.
+"""
+
+import numpy as np
+import taichi as ti
+
+from engine.model import Energy, ModelError, fill_vec3, float_dtype, vec3_ndarray
+
+__all__ = [
+    "BendingError", "BendingEnergy", "VARIANTS",
+    "hinge_angles_kernel", "theta_gradient_kernel", "bridson_u_kernel", "theta_hessian_kernel",
+    "hinge_energies_kernel", "bending_energy_kernel", "hinge_forces_kernel",
+    "hinge_hessian_blocks_kernel", "hinge_hessian_products_kernel", "hinge_hessian_diagonal_kernel",
+    "gather_hinge_vectors_kernel", "gather_hinge_diagonal_kernel",
+    "rest_geometry", "dihedral_angles_numpy", "hinge_stiffness", "build_hinge_incidence",
+    "dense_hessian_from_hinge_blocks", "scatter_hinge_vectors_numpy", "validate_hinges",
+]
+
+VARIANTS = ("notes", "bridson", "discrete-shells")
+MODE_QUADRATIC = 0   # (W1)
+MODE_HALF_ANGLE = 1  # (W2)
+_MODE = {"notes": MODE_QUADRATIC, "bridson": MODE_HALF_ANGLE, "discrete-shells": MODE_QUADRATIC}
+
+
+class BendingError(ModelError):
+    """Invalid bending input (a ValueError); one line naming the offending hinge/parameter."""
+
+
+# Kernel argument annotations (plain objects; no ti.init needed to create them).
+vec3_array = ti.types.ndarray(dtype=ti.math.vec3, ndim=1)
+vec3_array2 = ti.types.ndarray(dtype=ti.math.vec3, ndim=2)
+mat3_array = ti.types.ndarray(dtype=ti.math.mat3, ndim=1)
+mat3_array2 = ti.types.ndarray(dtype=ti.math.mat3, ndim=2)
+scalar_array = ti.types.ndarray(dtype=float, ndim=1)
+hinge_array = ti.types.ndarray(dtype=ti.i32, ndim=2)
+int_array = ti.types.ndarray(dtype=ti.i32, ndim=1)
+
+# Coefficients of P: (e, a0, a1) = P (x_v0, x_v1, x_w0, x_w1); row p, column slot.
+_P = ((-1, 1, 0, 0),   # e  = x_v1 - x_v0
+      (-1, 0, 1, 0),   # a0 = x_w0 - x_v0
+      (-1, 0, 0, 1))   # a1 = x_w1 - x_v0
+_H9_NONZERO = ((1, 1, 1), (1, 1, 0), (1, 0, 1))  # d G_a0 / d a1 = d G_a1 / d a0 = 0
+
+
+# --------------------------------------------------------------------------------------------
+# Taichi functions
+# --------------------------------------------------------------------------------------------
+
+@ti.func
+def _skew(a):
+    """[a]x, the matrix with [a]x b = a x b."""
+    return ti.Matrix([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+
+
+@ti.func
+def _theta(e, a0, a1):
+    # (A1) theta = atan2(e_hat . (N0 x N1), N0 . N1), N0 = e x a0, N1 = a1 x e
+    N0 = e.cross(a0)
+    N1 = a1.cross(e)
+    return ti.atan2(N0.cross(N1).dot(e) / e.norm(), N0.dot(N1))
+
+
+@ti.func
+def _theta_grad(e, a0, a1):
+    """(G1)-(G3): dtheta/dx for the slots (v0, v1, w0, w1)."""
+    s = e.norm()
+    N0 = e.cross(a0)
+    N1 = a1.cross(e)
+    g_w0 = (-s / N0.norm_sqr()) * N0           # -n0/h0
+    g_w1 = (-s / N1.norm_sqr()) * N1           # -n1/h1
+    t0 = a0.dot(e) / (s * s)
+    t1 = a1.dot(e) / (s * s)
+    g_v1 = -t0 * g_w0 - t1 * g_w1
+    g_v0 = -(g_v1 + g_w0 + g_w1)               # = -(1-t0) g_w0 - (1-t1) g_w1
+    return g_v0, g_v1, g_w0, g_w1
+
+
+@ti.func
+def _theta_hessian_parts(e, a0, a1):
+    """Second derivatives of theta(e, a0, a1): the blocks d G_p / d q (row = component of
+    the gradient G_p, column = component of q) for p, q in (e, a0, a1); G_a0 / a1 and
+    G_a1 / a0 vanish."""
+    I3 = ti.Matrix.identity(float, 3)
+    s = e.norm()
+    s2 = s * s
+    e_hat = e / s
+    N0 = e.cross(a0)
+    N1 = a1.cross(e)
+    q0 = N0.norm_sqr()
+    q1 = N1.norm_sqr()
+    f0 = N0 / q0                               # N/|N|^2
+    f1 = N1 / q1
+    D0 = (I3 - 2.0 * f0.outer_product(N0)) / q0   # d(N/|N|^2)/dN = (I - 2 n n^T)/|N|^2
+    D1 = (I3 - 2.0 * f1.outer_product(N1)) / q1
+    G_a0 = -s * f0
+    G_a1 = -s * f1
+    t0 = a0.dot(e) / s2
+    t1 = a1.dot(e) / s2
+    # G_a0 = -|e| f(N0), dN0/da0 = [e]x, dN0/de = -[a0]x
+    H_a0a0 = -s * (D0 @ _skew(e))
+    H_a0e = -f0.outer_product(e_hat) + s * (D0 @ _skew(a0))
+    # G_a1 = -|e| f(N1), dN1/da1 = -[e]x, dN1/de = [a1]x
+    H_a1a1 = s * (D1 @ _skew(e))
+    H_a1e = -f1.outer_product(e_hat) - s * (D1 @ _skew(a1))
+    # G_e = -t0 G_a0 - t1 G_a1; dt/da = e/|e|^2, dt/de = a/|e|^2 - 2 (a.e) e/|e|^4
+    dt0_de = a0 / s2 - (2.0 * a0.dot(e) / (s2 * s2)) * e
+    dt1_de = a1 / s2 - (2.0 * a1.dot(e) / (s2 * s2)) * e
+    H_ee = -G_a0.outer_product(dt0_de) - t0 * H_a0e - G_a1.outer_product(dt1_de) - t1 * H_a1e
+    H_ea0 = -G_a0.outer_product(e / s2) - t0 * H_a0a0
+    H_ea1 = -G_a1.outer_product(e / s2) - t1 * H_a1a1
+    return H_ee, H_ea0, H_ea1, H_a0e, H_a0a0, H_a1e, H_a1a1
+
+
+@ti.func
+def _theta_block(i: ti.template(), j: ti.template(), H_ee, H_ea0, H_ea1, H_a0e, H_a0a0, H_a1e, H_a1a1):
+    """Block (i, j) of the 12x12 Hessian of theta: sum_pq P[p][i] P[q][j] H9[p][q]."""
+    H9 = [[H_ee, H_ea0, H_ea1], [H_a0e, H_a0a0, H_a0a0], [H_a1e, H_a1a1, H_a1a1]]  # dummies where zero
+    out = ti.Matrix.zero(float, 3, 3)
+    for p in ti.static(range(3)):
+        for q in ti.static(range(3)):
+            if ti.static(_P[p][i] * _P[q][j] * _H9_NONZERO[p][q] != 0):
+                out += ti.static(float(_P[p][i] * _P[q][j])) * H9[p][q]
+    return out
+
+
+@ti.func
+def _wrap(d):
+    """d into [-pi, pi), so that W stays continuous when theta crosses +-pi."""
+    r = d
+    if r >= ti.math.pi:
+        r -= 2.0 * ti.math.pi
+    elif r < -ti.math.pi:
+        r += 2.0 * ti.math.pi
+    return r
+
+
+@ti.func
+def _energy_terms(theta, k, theta_bar, mode):
+    """W, dW/dtheta, d2W/dtheta2 of (W1) (mode 0) or (W2) (mode 1)."""
+    d = _wrap(theta - theta_bar)
+    W = 0.0
+    W1 = 0.0
+    W2 = 0.0
+    if mode == MODE_HALF_ANGLE:
+        s4 = ti.sin(0.25 * d)
+        W = 8.0 * k * s4 * s4              # 4 k (1 - cos(d/2)), cancellation-free
+        W1 = 2.0 * k * ti.sin(0.5 * d)
+        W2 = k * ti.cos(0.5 * d)
+    else:
+        W = 0.5 * k * d * d
+        W1 = k * d
+        W2 = k
+    return W, W1, W2
+
+
+@ti.func
+def _frame(x: ti.template(), hinges: ti.template(), h):
+    xv0 = x[hinges[h, 0]]
+    return x[hinges[h, 1]] - xv0, x[hinges[h, 2]] - xv0, x[hinges[h, 3]] - xv0
+
+
+# --------------------------------------------------------------------------------------------
+# Kernels (per hinge, parallel; results per hinge, no atomics)
+# --------------------------------------------------------------------------------------------
+
+@ti.kernel
+def hinge_angles_kernel(x: vec3_array, hinges: hinge_array, theta: scalar_array):
+    # (A1)
+    for h in range(hinges.shape[0]):
+        e, a0, a1 = _frame(x, hinges, h)
+        theta[h] = _theta(e, a0, a1)
+
+
+@ti.kernel
+def theta_gradient_kernel(x: vec3_array, hinges: hinge_array, grad: vec3_array2):
+    # (G1)-(G3): grad[h, slot] = dtheta_h / dx_slot
+    for h in range(hinges.shape[0]):
+        e, a0, a1 = _frame(x, hinges, h)
+        g = _theta_grad(e, a0, a1)
+        for a in ti.static(range(4)):
+            grad[h, a] = g[a]
+
+
+@ti.kernel
+def bridson_u_kernel(x: vec3_array, hinges: hinge_array, u: vec3_array2):
+    # Bridson et al. 2003, section 4, literally: x1, x2 the wings, x3, x4 the edge,
+    # E = x4 - x3, N1 = (x1 - x3) x (x1 - x4), N2 = (x2 - x4) x (x2 - x3),
+    # u1 = |E| N1/|N1|^2, u2 = |E| N2/|N2|^2,
+    # u3 = (x1-x4).E/|E| N1/|N1|^2 + (x2-x4).E/|E| N2/|N2|^2,
+    # u4 = -(x1-x3).E/|E| N1/|N1|^2 - (x2-x3).E/|E| N2/|N2|^2.
+    # Mapping x1 = w0, x2 = w1, x3 = v0, x4 = v1; written in slot order (v0, v1, w0, w1) =
+    # (u3, u4, u1, u2).  They equal -dtheta/dx.
+    for h in range(hinges.shape[0]):
+        x3 = x[hinges[h, 0]]
+        x4 = x[hinges[h, 1]]
+        x1 = x[hinges[h, 2]]
+        x2 = x[hinges[h, 3]]
+        E = x4 - x3
+        En = E.norm()
+        N1 = (x1 - x3).cross(x1 - x4)
+        N2 = (x2 - x4).cross(x2 - x3)
+        m1 = N1 / N1.norm_sqr()
+        m2 = N2 / N2.norm_sqr()
+        u[h, 2] = En * m1
+        u[h, 3] = En * m2
+        u[h, 0] = ((x1 - x4).dot(E) / En) * m1 + ((x2 - x4).dot(E) / En) * m2
+        u[h, 1] = -((x1 - x3).dot(E) / En) * m1 - ((x2 - x3).dot(E) / En) * m2
+
+
+@ti.kernel
+def theta_hessian_kernel(x: vec3_array, hinges: hinge_array, blocks: mat3_array2):
+    # Hess(theta) per hinge, blocks[h, 4a + b] = d2 theta / dx_a dx_b
+    for h in range(hinges.shape[0]):
+        e, a0, a1 = _frame(x, hinges, h)
+        H_ee, H_ea0, H_ea1, H_a0e, H_a0a0, H_a1e, H_a1a1 = _theta_hessian_parts(e, a0, a1)
+        for i in ti.static(range(4)):
+            for j in ti.static(range(4)):
+                blocks[h, 4 * i + j] = _theta_block(i, j, H_ee, H_ea0, H_ea1, H_a0e, H_a0a0, H_a1e, H_a1a1)
+
+
+@ti.kernel
+def hinge_energies_kernel(x: vec3_array, hinges: hinge_array, k: scalar_array, theta_bar: scalar_array,
+                          mode: ti.i32, out: scalar_array):
+    # (W1)/(W2) per hinge
+    for h in range(hinges.shape[0]):
+        e, a0, a1 = _frame(x, hinges, h)
+        W, W1, W2 = _energy_terms(_theta(e, a0, a1), k[h], theta_bar[h], mode)
+        out[h] = W
+
+
+@ti.kernel
+def bending_energy_kernel(x: vec3_array, hinges: hinge_array, k: scalar_array, theta_bar: scalar_array,
+                          mode: ti.i32) -> float:
+    # sum_e W_e, (W1)/(W2); parallel reduction
+    total = 0.0
+    for h in range(hinges.shape[0]):
+        e, a0, a1 = _frame(x, hinges, h)
+        W, W1, W2 = _energy_terms(_theta(e, a0, a1), k[h], theta_bar[h], mode)
+        total += W
+    return total
+
+
+@ti.kernel
+def hinge_forces_kernel(x: vec3_array, hinges: hinge_array, k: scalar_array, theta_bar: scalar_array,
+                        mode: ti.i32, fh: vec3_array2):
+    # pass 1: fh[h, slot] = -dW_h/dx_slot = -W'(theta) dtheta/dx_slot  (= W' u, Bridson's u)
+    for h in range(hinges.shape[0]):
+        e, a0, a1 = _frame(x, hinges, h)
+        W, W1, W2 = _energy_terms(_theta(e, a0, a1), k[h], theta_bar[h], mode)
+        g = _theta_grad(e, a0, a1)
+        for a in ti.static(range(4)):
+            fh[h, a] = -W1 * g[a]
+
+
+@ti.kernel
+def gather_hinge_vectors_kernel(vh: vec3_array2, offsets: int_array, entries: int_array, out: vec3_array):
+    # pass 2: out[v] += sum over incidences (entry = 4*hinge + slot) of vh[hinge, slot]
+    for v in range(offsets.shape[0] - 1):
+        acc = ti.math.vec3(0.0)
+        for j in range(offsets[v], offsets[v + 1]):
+            ent = entries[j]
+            acc += vh[ent // 4, ent % 4]
+        out[v] += acc
+
+
+@ti.kernel
+def hinge_hessian_blocks_kernel(x: vec3_array, hinges: hinge_array, k: scalar_array, theta_bar: scalar_array,
+                                mode: ti.i32, psd: ti.template(), blocks: mat3_array2):
+    # psd: max(W'', 0) g g^T;  exact: W'' g g^T + W' Hess(theta)
+    for h in range(hinges.shape[0]):
+        e, a0, a1 = _frame(x, hinges, h)
+        W, W1, W2 = _energy_terms(_theta(e, a0, a1), k[h], theta_bar[h], mode)
+        g = _theta_grad(e, a0, a1)
+        if ti.static(psd):
+            c2 = ti.max(W2, 0.0)
+            for i in ti.static(range(4)):
+                for j in ti.static(range(4)):
+                    blocks[h, 4 * i + j] = c2 * g[i].outer_product(g[j])
+        else:
+            H_ee, H_ea0, H_ea1, H_a0e, H_a0a0, H_a1e, H_a1a1 = _theta_hessian_parts(e, a0, a1)
+            for i in ti.static(range(4)):
+                for j in ti.static(range(4)):
+                    blocks[h, 4 * i + j] = W2 * g[i].outer_product(g[j]) + W1 * _theta_block(
+                        i, j, H_ee, H_ea0, H_ea1, H_a0e, H_a0a0, H_a1e, H_a1a1)
+
+
+@ti.kernel
+def hinge_hessian_products_kernel(x: vec3_array, hinges: hinge_array, k: scalar_array, theta_bar: scalar_array,
+                                  mode: ti.i32, psd: ti.template(), dx: vec3_array, yh: vec3_array2):
+    # pass 1 of out += H dx: yh[h, a] = sum_b H_ab dx[hinge slot b], blocks recomputed from x
+    for h in range(hinges.shape[0]):
+        e, a0, a1 = _frame(x, hinges, h)
+        W, W1, W2 = _energy_terms(_theta(e, a0, a1), k[h], theta_bar[h], mode)
+        g = _theta_grad(e, a0, a1)
+        d = [dx[hinges[h, 0]], dx[hinges[h, 1]], dx[hinges[h, 2]], dx[hinges[h, 3]]]
+        gd = g[0].dot(d[0]) + g[1].dot(d[1]) + g[2].dot(d[2]) + g[3].dot(d[3])
+        if ti.static(psd):
+            c = ti.max(W2, 0.0) * gd
+            for i in ti.static(range(4)):
+                yh[h, i] = c * g[i]
+        else:
+            H_ee, H_ea0, H_ea1, H_a0e, H_a0a0, H_a1e, H_a1a1 = _theta_hessian_parts(e, a0, a1)
+            for i in ti.static(range(4)):
+                y = (W2 * gd) * g[i]
+                for j in ti.static(range(4)):
+                    y += W1 * (_theta_block(i, j, H_ee, H_ea0, H_ea1, H_a0e, H_a0a0, H_a1e, H_a1a1) @ d[j])
+                yh[h, i] = y
+
+
+@ti.kernel
+def hinge_hessian_diagonal_kernel(x: vec3_array, hinges: hinge_array, k: scalar_array, theta_bar: scalar_array,
+                                  mode: ti.i32, psd: ti.template(), dh: mat3_array2):
+    # pass 1 of the block diagonal: dh[h, a] = H_aa of hinge h
+    for h in range(hinges.shape[0]):
+        e, a0, a1 = _frame(x, hinges, h)
+        W, W1, W2 = _energy_terms(_theta(e, a0, a1), k[h], theta_bar[h], mode)
+        g = _theta_grad(e, a0, a1)
+        if ti.static(psd):
+            c2 = ti.max(W2, 0.0)
+            for i in ti.static(range(4)):
+                dh[h, i] = c2 * g[i].outer_product(g[i])
+        else:
+            H_ee, H_ea0, H_ea1, H_a0e, H_a0a0, H_a1e, H_a1a1 = _theta_hessian_parts(e, a0, a1)
+            for i in ti.static(range(4)):
+                dh[h, i] = W2 * g[i].outer_product(g[i]) + W1 * _theta_block(
+                    i, i, H_ee, H_ea0, H_ea1, H_a0e, H_a0a0, H_a1e, H_a1a1)
+
+
+@ti.kernel
+def gather_hinge_diagonal_kernel(dh: mat3_array2, offsets: int_array, entries: int_array, diag: mat3_array):
+    # pass 2: diag[v] += sum over incidences of dh[hinge, slot]
+    for v in range(offsets.shape[0] - 1):
+        acc = ti.math.mat3(0.0)
+        for j in range(offsets[v], offsets[v + 1]):
+            ent = entries[j]
+            acc += dh[ent // 4, ent % 4]
+        diag[v] += acc
+
+
+# --------------------------------------------------------------------------------------------
+# numpy set-up helpers (rest quantities, validation, incidence, test references)
+# --------------------------------------------------------------------------------------------
+
+def _as_points3(X) -> np.ndarray:
+    if hasattr(X, "to_numpy") and not isinstance(X, np.ndarray):
+        X = X.to_numpy()
+    X = np.asarray(X, dtype=np.float64)
+    if X.ndim == 2 and X.shape[1] == 2:
+        X = np.concatenate([X, np.zeros((len(X), 1))], axis=1)
+    if X.ndim != 2 or X.shape[1] != 3:
+        raise BendingError(f"rest positions must have shape (n, 3), got {X.shape}")
+    return X
+
+
+def rest_geometry(X, hinges) -> dict:
+    """Rest quantities per hinge (float64 arrays): ``edge_length`` |e|, ``h0``, ``h1`` (wing
+    heights over the edge), ``A0``, ``A1`` (wing triangle areas), ``A_e`` = |e|(h0+h1)/6."""
+    X = _as_points3(X)
+    H = np.asarray(hinges, dtype=np.int64).reshape(-1, 4)
+    xv0, xv1, xw0, xw1 = (X[H[:, k]] for k in range(4))
+    e = xv1 - xv0
+    L = np.linalg.norm(e, axis=1)
+    A0 = 0.5 * np.linalg.norm(np.cross(e, xw0 - xv0), axis=1)
+    A1 = 0.5 * np.linalg.norm(np.cross(xv0 - xv1, xw1 - xv1), axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        h0 = 2.0 * A0 / L
+        h1 = 2.0 * A1 / L
+    return dict(edge_length=L, h0=h0, h1=h1, A0=A0, A1=A1, A_e=L * (h0 + h1) / 6.0)
+
+
+def dihedral_angles_numpy(X, hinges) -> np.ndarray:
+    """(A1) in numpy (float64): reference for the kernel and for ``from_rest`` rest angles."""
+    X = _as_points3(X)
+    H = np.asarray(hinges, dtype=np.int64).reshape(-1, 4)
+    xv0, xv1, xw0, xw1 = (X[H[:, k]] for k in range(4))
+    e = xv1 - xv0
+    N0 = np.cross(e, xw0 - xv0)
+    N1 = np.cross(xw1 - xv0, e)
+    sin_part = np.einsum("ij,ij->i", np.cross(N0, N1), e) / np.linalg.norm(e, axis=1)
+    return np.arctan2(sin_part, np.einsum("ij,ij->i", N0, N1))
+
+
+def hinge_stiffness(variant: str, B, geometry: dict) -> np.ndarray:
+    """k_e per hinge: (K1) for "notes" and "bridson", (K2) for "discrete-shells"."""
+    if variant not in VARIANTS:
+        raise BendingError(f"unknown bending variant {variant!r}; choose one of {', '.join(VARIANTS)}")
+    L, h0, h1 = geometry["edge_length"], geometry["h0"], geometry["h1"]
+    if variant == "discrete-shells":
+        return B * L * L / (4.0 * (geometry["A0"] + geometry["A1"]))   # (K2) B|e|^2/(4(A0+A1))
+    return B * L * L / (36.0 * (L * (h0 + h1) / 6.0))                    # (K1) B|e|^2/(36 A_e)
+
+
+def _edge_name(H, i) -> str:
+    return f"hinge {i} (edge {H[i, 0]}-{H[i, 1]})"
+
+
+def validate_hinges(X, hinges, B=None, theta_bar=None, rel_tol: float = 1e-12) -> np.ndarray:
+    """Check hinge input; return hinges as int64 (h, 4).  Raises BendingError naming the hinge.
+
+    Checks: shape; indices in 0..n-1; four distinct vertices; finite rest positions of the
+    hinge vertices; each wing triangle t0 = (v0, v1, w0), t1 = (v1, v0, w1) of non-zero area
+    (2 * area > rel_tol * longest side^2); B finite and >= 0; theta_bar finite."""
+    X = _as_points3(X)
+    n = len(X)
+    H = np.asarray(hinges)
+    if H.size == 0:
+        H = H.reshape(0, 4)
+    if H.ndim != 2 or H.shape[1] != 4 or (H.size and not np.issubdtype(H.dtype, np.integer)):
+        raise BendingError(f"hinges must be an integer array of shape (h, 4) [v0, v1, w0, w1], "
+                           f"got {H.dtype} {H.shape}")
+    H = H.astype(np.int64)
+    bad = np.flatnonzero(((H < 0) | (H >= n)).any(axis=1))
+    if bad.size:
+        i = bad[0]
+        v = H[i][(H[i] < 0) | (H[i] >= n)][0]
+        raise BendingError(f"hinge {i} [{', '.join(map(str, H[i]))}]: vertex index {v} out of range 0..{n - 1}")
+    srt = np.sort(H, axis=1)
+    bad = np.flatnonzero((srt[:, 1:] == srt[:, :-1]).any(axis=1))
+    if bad.size:
+        i = bad[0]
+        raise BendingError(f"{_edge_name(H, i)}: vertices [{', '.join(map(str, H[i]))}] are not four distinct vertices")
+    bad = np.flatnonzero(~np.isfinite(X[H]).all(axis=(1, 2)))
+    if bad.size:
+        i = bad[0]
+        raise BendingError(f"{_edge_name(H, i)}: a vertex has a non-finite rest position")
+    if len(H):
+        xv0, xv1, xw0, xw1 = (X[H[:, k]] for k in range(4))
+        for tri, (p, q, r), cols in (("t0", (xv0, xv1, xw0), (0, 1, 2)), ("t1", (xv1, xv0, xw1), (1, 0, 3))):
+            twice_area = np.linalg.norm(np.cross(q - p, r - p), axis=1)
+            longest = np.max([np.linalg.norm(q - p, axis=1), np.linalg.norm(r - q, axis=1),
+                              np.linalg.norm(p - r, axis=1)], axis=0)
+            bad = np.flatnonzero(~(twice_area > rel_tol * longest * longest))
+            if bad.size:
+                i = bad[0]
+                t = ", ".join(str(H[i, c]) for c in cols)
+                raise BendingError(f"{_edge_name(H, i)}: wing triangle ({t}) has zero area")
+    if B is not None:
+        Bv = np.broadcast_to(np.asarray(B, dtype=np.float64), (len(H),)) if np.ndim(B) == 0 else np.asarray(B, float)
+        if Bv.shape != (len(H),):
+            raise BendingError(f"B must be a scalar or have shape ({len(H)},), got {Bv.shape}")
+        bad = np.flatnonzero(~np.isfinite(Bv) | (Bv < 0))
+        if bad.size:
+            i = bad[0]
+            if np.ndim(B) == 0:
+                raise BendingError(f"bending modulus B = {float(B)!r} must be finite and >= 0")
+            raise BendingError(f"{_edge_name(H, i)}: bending modulus B = {float(Bv[i])!r} must be finite and >= 0")
+    if theta_bar is not None:
+        tb = np.asarray(theta_bar, dtype=np.float64)
+        if tb.shape != (len(H),):
+            raise BendingError(f"theta_bar must have shape ({len(H)},), got {tb.shape}")
+        bad = np.flatnonzero(~np.isfinite(tb))
+        if bad.size:
+            i = bad[0]
+            raise BendingError(f"{_edge_name(H, i)}: rest angle theta_bar = {float(tb[i])!r} must be finite")
+    return H
+
+
+def build_hinge_incidence(n: int, hinges: np.ndarray):
+    """CSR vertex -> hinge slots: ``offsets`` (n+1,) and ``entries`` (4h,) with entry =
+    4*hinge + slot, in increasing hinge order per vertex."""
+    flat = np.asarray(hinges, dtype=np.int64).reshape(-1)
+    order = np.argsort(flat, kind="stable")
+    counts = np.bincount(flat, minlength=n)
+    offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    return offsets, order.astype(np.int64)
+
+
+def scatter_hinge_vectors_numpy(n: int, hinges: np.ndarray, vh: np.ndarray) -> np.ndarray:
+    """Reference scatter: out[v] = sum of vh[h, slot] over (h, slot) with hinges[h, slot] = v."""
+    out = np.zeros((n, 3))
+    np.add.at(out, np.asarray(hinges).reshape(-1), np.asarray(vh, dtype=np.float64).reshape(-1, 3))
+    return out
+
+
+def dense_hessian_from_hinge_blocks(n: int, hinges: np.ndarray, blocks: np.ndarray) -> np.ndarray:
+    """Dense (3n, 3n) Hessian from blocks (h, 16, 3, 3), blocks[h, 4a+b] on slots (a, b)."""
+    Hd = np.zeros((3 * n, 3 * n))
+    blocks = np.asarray(blocks, dtype=np.float64).reshape(-1, 16, 3, 3)
+    for h, row in enumerate(np.asarray(hinges)):
+        for a in range(4):
+            for b in range(4):
+                i, j = 3 * int(row[a]), 3 * int(row[b])
+                Hd[i:i + 3, j:j + 3] += blocks[h, 4 * a + b]
+    return Hd
+
+
+# --------------------------------------------------------------------------------------------
+# Energy object
+# --------------------------------------------------------------------------------------------
+
+class BendingEnergy(Energy):
+    """Sum over hinges of (W1)/(W2) with per-hinge k_e from the rest mesh (module docstring).
+
+    Parameters
+      rest_positions  (n, 3) rest positions [m] (numpy or vec3 ndarray; (n, 2) is embedded at z=0)
+      hinges          (h, 4) int [v0, v1, w0, w1] (engine/mesh.py convention)
+      B               bending modulus [J = N m], scalar or per hinge, finite and >= 0
+      variant         "notes" | "bridson" | "discrete-shells"
+      theta_bar       (h,) rest angles [rad]; or from_rest=True to measure them on the rest
+                      mesh (curved rest shapes); default zeros (flat rest)
+
+    Protocol (engine.model.Energy): x, f, dx, out are vec3 ndarrays with one entry per vertex
+    (numpy (n, 3) arrays are also accepted; a numpy f/out is updated in place).
+    Attributes (numpy, float64): ``hinges_np``, ``k`` (k_e), ``theta_bar``, ``geometry``
+    (rest_geometry dict), ``A_e``.
+    """
+
+    name = "bending"
+
+    def __init__(self, rest_positions, hinges, B, variant: str = "notes", theta_bar=None,
+                 from_rest: bool = False):
+        if variant not in VARIANTS:
+            raise BendingError(f"unknown bending variant {variant!r}; choose one of {', '.join(VARIANTS)}")
+        X = _as_points3(rest_positions)
+        H = validate_hinges(X, hinges, B=B, theta_bar=theta_bar)
+        if from_rest and theta_bar is not None:
+            raise BendingError("give either theta_bar or from_rest=True, not both")
+        h = len(H)
+        if h >= 2 ** 29 or len(X) >= 2 ** 31:
+            raise BendingError(f"too many hinges/vertices for i32 indexing ({h}, {len(X)})")
+        self.n_vertices = len(X)
+        self.n_hinges = h
+        self.variant = variant
+        self.mode = _MODE[variant]
+        self.hinges_np = H
+        self.geometry = rest_geometry(X, H)
+        self.A_e = self.geometry["A_e"]
+        self.B = np.broadcast_to(np.asarray(B, dtype=np.float64), (h,)).copy()
+        self.k = hinge_stiffness(variant, self.B, self.geometry)
+        if from_rest:
+            tb = dihedral_angles_numpy(X, H)
+        elif theta_bar is None:
+            tb = np.zeros(h)
+        else:
+            tb = np.asarray(theta_bar, dtype=np.float64).copy()
+        self.theta_bar = tb
+        self.offsets_np, self.entries_np = build_hinge_incidence(self.n_vertices, H)
+
+        m = max(h, 1)  # ndarrays of size 0 are avoided; kernels are skipped when h == 0
+        fdt = float_dtype()
+        self._hinges = ti.ndarray(dtype=ti.i32, shape=(m, 4))
+        self._k = ti.ndarray(dtype=float, shape=m)
+        self._theta_bar = ti.ndarray(dtype=float, shape=m)
+        self._offsets = ti.ndarray(dtype=ti.i32, shape=self.n_vertices + 1)
+        self._entries = ti.ndarray(dtype=ti.i32, shape=max(4 * h, 1))
+        if h:
+            self._hinges.from_numpy(H.astype(np.int32))
+            self._k.from_numpy(self.k.astype(fdt))
+            self._theta_bar.from_numpy(tb.astype(fdt))
+            self._entries.from_numpy(self.entries_np.astype(np.int32))
+        self._offsets.from_numpy(self.offsets_np.astype(np.int32))
+        self._per_hinge_vec = ti.ndarray(dtype=ti.math.vec3, shape=(m, 4))
+        self._scalars = ti.ndarray(dtype=float, shape=m)
+        self._blocks = None
+        self._diag = None
+        self._scratch: dict[str, object] = {}
+
+    @classmethod
+    def from_mesh(cls, mesh, B, variant: str = "notes", **kwargs) -> "BendingEnergy":
+        """From an engine.mesh.Mesh (uses ``mesh.vertices`` and ``mesh.hinges``)."""
+        return cls(mesh.vertices, mesh.hinges, B, variant=variant, **kwargs)
+
+    # -- argument handling ---------------------------------------------------------------------
+    def _vec3(self, a, slot: str):
+        """A vec3 ndarray view of a (numpy arrays are copied into a per-slot scratch buffer)."""
+        if isinstance(a, np.ndarray):
+            a = np.asarray(a, dtype=np.float64).reshape(-1, 3)
+            if len(a) != self.n_vertices:
+                raise BendingError(f"{slot} has {len(a)} vertices, the bending energy has {self.n_vertices}")
+            buf = self._scratch.get(slot)
+            if buf is None:
+                buf = self._scratch[slot] = vec3_ndarray(self.n_vertices)
+            buf.from_numpy(a.astype(float_dtype()))
+            return buf
+        if tuple(a.shape) != (self.n_vertices,):
+            raise BendingError(f"{slot} has shape {tuple(a.shape)}, the bending energy has {self.n_vertices} vertices")
+        return a
+
+    def _args(self):
+        return self._hinges, self._k, self._theta_bar, self.mode
+
+    def _gather_into(self, out) -> None:
+        if isinstance(out, np.ndarray):
+            buf = self._vec3(out, "out")
+            gather_hinge_vectors_kernel(self._per_hinge_vec, self._offsets, self._entries, buf)
+            out[...] = buf.to_numpy().reshape(out.shape)
+        else:
+            self._vec3(out, "out")
+            gather_hinge_vectors_kernel(self._per_hinge_vec, self._offsets, self._entries, out)
+
+    # -- protocol ------------------------------------------------------------------------------
+    def energy(self, x) -> float:
+        """W(x) = sum_e W_e."""
+        if self.n_hinges == 0:
+            return 0.0
+        return float(bending_energy_kernel(self._vec3(x, "x"), *self._args()))
+
+    def hinge_energies(self, x) -> np.ndarray:
+        """(h,) W_e."""
+        if self.n_hinges == 0:
+            return np.zeros(0)
+        hinge_energies_kernel(self._vec3(x, "x"), *self._args(), self._scalars)
+        return self._scalars.to_numpy()[: self.n_hinges].astype(np.float64)
+
+    def angles(self, x) -> np.ndarray:
+        """(h,) signed dihedral angles theta (A1), rad."""
+        if self.n_hinges == 0:
+            return np.zeros(0)
+        hinge_angles_kernel(self._vec3(x, "x"), self._hinges, self._scalars)
+        return self._scalars.to_numpy()[: self.n_hinges].astype(np.float64)
+
+    def hinge_forces(self, x) -> np.ndarray:
+        """(h, 4, 3) per-hinge forces -dW_e/dx_slot (pass 1 of :meth:`add_forces`)."""
+        if self.n_hinges == 0:
+            return np.zeros((0, 4, 3))
+        hinge_forces_kernel(self._vec3(x, "x"), *self._args(), self._per_hinge_vec)
+        return self._per_hinge_vec.to_numpy()[: self.n_hinges].astype(np.float64)
+
+    def add_forces(self, x, f) -> None:
+        """f += -dW/dx: per-hinge forces, then a per-vertex gather (deterministic)."""
+        if self.n_hinges == 0:
+            return
+        hinge_forces_kernel(self._vec3(x, "x"), *self._args(), self._per_hinge_vec)
+        self._gather_into(f)
+
+    def forces(self, x) -> np.ndarray:
+        """-dW/dx as a numpy (n, 3) array."""
+        f = np.zeros((self.n_vertices, 3))
+        self.add_forces(x, f)
+        return f
+
+    def add_hessian_product(self, x, dx, out, psd: bool = True) -> None:
+        """out += H(x) dx, H exact or (psd) Gauss-Newton max(W'',0) g g^T."""
+        if self.n_hinges == 0:
+            return
+        hinge_hessian_products_kernel(self._vec3(x, "x"), *self._args(), bool(psd), self._vec3(dx, "dx"),
+                                      self._per_hinge_vec)
+        self._gather_into(out)
+
+    def hessian_blocks(self, x, psd: bool = True):
+        """Per-hinge 12x12 Hessians as a mat3 ndarray (max(h,1), 16): blocks[h, 4a+b] =
+        d2W_h/dx_a dx_b, slots a, b in [v0, v1, w0, w1] order.  The buffer is reused (overwritten
+        by the next call)."""
+        if self._blocks is None:
+            self._blocks = ti.ndarray(dtype=ti.math.mat3, shape=(max(self.n_hinges, 1), 16))
+        if self.n_hinges:
+            hinge_hessian_blocks_kernel(self._vec3(x, "x"), *self._args(), bool(psd), self._blocks)
+        return self._blocks
+
+    def hessian_blocks_numpy(self, x, psd: bool = True) -> np.ndarray:
+        """(h, 16, 3, 3) float64 copy of :meth:`hessian_blocks`."""
+        return self.hessian_blocks(x, psd).to_numpy()[: self.n_hinges].astype(np.float64)
+
+    def theta_hessian_blocks_numpy(self, x) -> np.ndarray:
+        """(h, 16, 3, 3): Hess(theta) per hinge, same layout."""
+        blocks = ti.ndarray(dtype=ti.math.mat3, shape=(max(self.n_hinges, 1), 16))
+        if self.n_hinges:
+            theta_hessian_kernel(self._vec3(x, "x"), self._hinges, blocks)
+        return blocks.to_numpy()[: self.n_hinges].astype(np.float64)
+
+    def add_hessian_diagonal(self, x, diag, psd: bool = True) -> None:
+        """diag[v] += H_vv (3x3 vertex blocks, a mat3 ndarray), for block-Jacobi."""
+        if self.n_hinges == 0:
+            return
+        if self._diag is None:
+            self._diag = ti.ndarray(dtype=ti.math.mat3, shape=(self.n_hinges, 4))
+        hinge_hessian_diagonal_kernel(self._vec3(x, "x"), *self._args(), bool(psd), self._diag)
+        gather_hinge_diagonal_kernel(self._diag, self._offsets, self._entries, diag)
+
+    def dense_hessian(self, x, psd: bool = True) -> np.ndarray:
+        """Dense (3n, 3n) Hessian assembled in numpy from the blocks (tests, small meshes)."""
+        return dense_hessian_from_hinge_blocks(self.n_vertices, self.hinges_np, self.hessian_blocks_numpy(x, psd))
+
+    def gershgorin_row_sums(self, x) -> np.ndarray:
+        """(n, 3): sum_j |H_(v,a),j| of the exact Hessian at x, for a stable-time-step bound."""
+        rows = np.zeros((self.n_vertices, 3))
+        if self.n_hinges:
+            absrow = np.abs(self.hessian_blocks_numpy(x, psd=False)).sum(axis=3)  # (h, 16, 3)
+            per_slot = absrow.reshape(-1, 4, 4, 3).sum(axis=2)                     # (h, 4, 3)
+            np.add.at(rows, self.hinges_np.reshape(-1), per_slot.reshape(-1, 3))
+        return rows
+
+    def energy_density(self, x) -> np.ndarray:
+        """(n,) J/m^2 per vertex: sum of incident W_e / sum of incident rest A_e (0 where a
+        vertex has no hinge).  See the module docstring."""
+        W = self.hinge_energies(x)
+        flat = self.hinges_np.reshape(-1)
+        num = np.bincount(flat, weights=np.repeat(W, 4), minlength=self.n_vertices)
+        den = np.bincount(flat, weights=np.repeat(self.A_e, 4), minlength=self.n_vertices)
+        return np.divide(num, den, out=np.zeros(self.n_vertices), where=den > 0)
+
