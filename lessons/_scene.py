@@ -1,0 +1,97 @@
+"""Running an engine Model inside a lesson stage: chunked stepping, per-step energies,
+geometry logging every k-th step, blow-up detection at the step, progress.
+
+Lessons call :func:`simulate` instead of writing their own loops, so every scene is
+recorded and checked the same way.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from engine import diagnostics
+from engine.integrators import get as get_integrator
+from engine.integrators.explicit import BlowUpError, _blowup_message, stable_dt_estimate
+
+
+def simulate(ctx, name: str, model, state, dt: float, n_steps: int, integrator: str = "symplectic-euler",
+             every: int | None = None, energy_bound: float | None = None, observe=None, log=None,
+             energy_every: int = 1):
+    """Advance ``state`` by ``n_steps`` steps of ``integrator``.
+
+    After every ``energy_every``-th step the kinetic and potential energy (J) are computed; a
+    total above ``energy_bound`` or non-finite raises BlowUpError naming that step (after
+    logging everything up to it and marking it in the recording). Every ``every`` steps (and
+    at step 0) ``log(rec, state)`` draws the geometry (if recording) and
+    ``observe(step, state)`` is called (for measurements). Returns (steps, kinetic, potential)
+    arrays at the energy samples.
+    """
+    rec = ctx.rec
+    every = int(every or getattr(ctx.cfg, "record_every", 20))
+    integ = get_integrator(integrator) if isinstance(integrator, str) else integrator
+    rec.run(name)
+    steps, kin, pot = [], [], []
+
+    def draw(step):
+        if log is not None and rec.enabled:
+            rec.set_time(step, step * dt)
+            log(rec, state)
+        if observe is not None:
+            observe(step, state)
+
+    def flush_energies(first):
+        if rec.enabled and kin[first:]:
+            k = np.asarray(kin[first:])
+            w = np.asarray(pot[first:])
+            if energy_every == 1:
+                rec.energies(k, w, dt, first_step=steps[first] - 1)
+            else:  # sparse samples: log them one by one at their own steps
+                for s, ks, ws in zip(steps[first:], k, w):
+                    rec.energies([ks], [ws], dt, first_step=s - 1)
+
+    draw(0)
+    flushed = 0
+    begin = getattr(integ, "begin", None)
+    if begin is not None:
+        begin(model, state)
+    with ctx.timed(name, n_steps):
+        for s in range(1, n_steps + 1):
+            if hasattr(integ, "advance"):
+                integ.advance(model, state, dt)
+            else:
+                integ.step(model, state, dt, 1)
+            if s % energy_every == 0 or s == n_steps:
+                K = diagnostics.kinetic_energy(model, state)
+                W = model.potential_energy(state.x)
+                steps.append(s)
+                kin.append(K)
+                pot.append(W)
+                E = K + W
+                if not math.isfinite(E) or (energy_bound is not None and E > energy_bound):
+                    flush_energies(flushed)
+                    draw(s)
+                    dts = stable_dt_estimate(model)
+                    exc = BlowUpError(_blowup_message(integ.name, s - 1, state.t, E, energy_bound, dt, dts),
+                                      step=s - 1, time=state.t, energy=E, dt=dt, dt_stable=dts,
+                                      integrator=integ.name)
+                    rec.set_time(s, s * dt)
+                    rec.mark(str(exc), level="ERROR")
+                    raise exc
+            if s % every == 0 or s == n_steps:
+                flush_energies(flushed)
+                flushed = len(kin)
+                draw(s)
+    return np.asarray(steps), np.asarray(kin), np.asarray(pot)
+
+
+def edge_strain(x: np.ndarray, edges: np.ndarray, rest_lengths: np.ndarray) -> np.ndarray:
+    """(l/L - 1) per edge, for colouring."""
+    return np.linalg.norm(x[edges[:, 1]] - x[edges[:, 0]], axis=1) / rest_lengths - 1.0
+
+
+def vertex_strain(n: int, edges: np.ndarray, strain: np.ndarray) -> np.ndarray:
+    """Mean strain of the edges around each vertex, for vertex colours."""
+    acc = np.bincount(edges.ravel(), weights=np.repeat(strain, 2), minlength=n)
+    cnt = np.bincount(edges.ravel(), minlength=n)
+    return acc / np.maximum(cnt, 1)
