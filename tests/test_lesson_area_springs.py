@@ -1,0 +1,212 @@
+"""Lesson area-springs: every experiment, its key figures, the long-wavelength theory of
+engine/waves.py, and finite-difference checks of the area/volume-spring energy on jittered
+meshes.
+
+Not repeated here (tests/test_mesh.py has them): edge measures and lumped masses summing to
+the total area/volume/mass on every generator (jittered too), and the bad-mesh errors.
+"""
+import math
+
+import numpy as np
+import pytest
+
+from engine import mesh as M
+from engine.errors import ParameterError
+from engine.model import Model, vec3_ndarray
+from engine.waves import (ModeProbe, cauchy_born_tensor, christoffel, max_speed, phase_frequency,
+                          relaxed_stiffness_2d, young_poisson)
+from lessons._framework import validate_config
+from lessons.area_springs import LESSON, AreaSpringsConfig, bulk_tensor
+from tests.helpers import assert_all_passed, run_stage
+
+
+@pytest.fixture(scope="module")
+def stages():
+    return {i: run_stage(LESSON, i) for i in range(1, len(LESSON.stages) + 1)}
+
+
+# ------------------------------------------------------------------------- the stages
+
+def test_stage1_constant_k_scales_as_one_over_h_volume_springs_do_not(stages):
+    s = stages[1]
+    assert_all_passed(s)
+    r2 = s["one k for all springs: speed ratio c(h/2)/c(h) = 2 (c ~ 1/h)"]
+    r4 = s["one k for all springs: speed ratio c(h/4)/c(h) = 4 (c ~ 1/h)"]
+    assert r2.theory == 2.0 and abs(r2.measured / 2 - 1) < 2e-2
+    assert r4.theory == 4.0 and abs(r4.measured / 4 - 1) < 2e-2
+    for key in ("volume-scaled springs: speed ratio c(h/2)/c(h) = 1",
+                "volume-scaled springs: speed ratio c(h/4)/c(h) = 1"):
+        assert abs(s[key].measured - 1) < 1e-2
+
+
+def test_stage2_equilateral_p_and_s_speeds(stages):
+    s = stages[2]
+    assert_all_passed(s)
+    cP, cS = math.sqrt(3 / 8), math.sqrt(1 / 8)  # E = rho = 1
+    for axis in "xy":
+        p = s[f"P wave along {axis} (an edge direction) = sqrt(3/8) c0" if axis == "x"
+              else "P wave along y (across the edges) = sqrt(3/8) c0"]
+        assert p.theory == pytest.approx(cP) and abs(p.measured / cP - 1) < 2e-2
+    sx = s["S wave along x = sqrt(mu/rho) = sqrt(1/8) c0"]
+    assert sx.theory == pytest.approx(0.35355, abs=1e-5) and abs(sx.measured / cS - 1) < 2e-2
+    assert abs(s["c_P/c_S = sqrt(3), i.e. lambda = mu (Cauchy relation)"].measured / math.sqrt(3) - 1) < 1e-2
+
+
+def test_stage3_patterns_are_anisotropic_and_predicted(stages):
+    s = stages[3]
+    assert_all_passed(s)
+    expected = {"one-way": (0.6606, 0.7071, 0.4082), "alternating": (0.6455, 0.5774, 0.5774),
+                "crossed": (0.5774, 0.6455, 0.6455)}
+    for pattern, (vx, vd, va) in expected.items():
+        for label, v in (("x", vx), ("diagonal (1,1)", vd), ("diagonal (1,-1)", va)):
+            e = s[f"{pattern} grid: P wave along {label} = Cauchy-Born ({v:.4f} c0)"]
+            assert e.theory == pytest.approx(v, abs=1e-4)
+            assert abs(e.measured / e.theory - 1) < 2e-2
+    assert s["one-way grid is anisotropic: speed along / across its diagonals"].measured > 1.7
+
+
+def test_stage3_jitter_the_affine_sum_is_an_upper_bound(stages):
+    s = stages[3]
+    bound = s["jitter 0.25: the affine Cauchy-Born sum is an upper bound (max measured/sum)"]
+    assert bound.measured < 0.99  # strong jitter: a few per cent softer than the affine sum
+    for seed in range(3):
+        for axis in "xy":
+            e = s[f"jitter 0.25 (seed {seed}): P along {axis} = relaxed-network prediction"]
+            assert abs(e.measured / e.theory - 1) < 2e-2
+    mild = s["mild jitter 0.1: P along x = Cauchy-Born sum over its springs"]
+    assert abs(mild.measured / mild.theory - 1) < 2e-2
+
+
+def test_stage4_tet_box(stages):
+    s = stages[4]
+    assert_all_passed(s)
+    e = s["tet box, h: P along (1,1,1) = Cauchy-Born sqrt(10/27) c0"]
+    assert e.theory == pytest.approx(math.sqrt(10 / 27))
+    assert abs(s["refinement leaves the (1,1,1) speed unchanged: c(h/2)/c(h)"].measured - 1) < 1e-2
+
+
+def test_stage5_static_stretch(stages):
+    s = stages[5]
+    assert_all_passed(s)
+    nu = s["equilateral sheet: Poisson's ratio = 1/3"]
+    E = s["equilateral sheet: Young's modulus E_eff = E/3"]
+    assert abs(nu.measured * 3 - 1) < 2e-2 and abs(E.measured * 3 - 1) < 2e-2
+    alt = s["alternating grid, pulled along x: Poisson's ratio (Cauchy-Born, 1/5)"]
+    assert alt.theory == pytest.approx(0.2) and abs(alt.measured / 0.2 - 1) < 2e-2
+
+
+def test_stage5_records_the_stretched_strips(tmp_path):
+    from engine.recorder import Recorder, summarize
+    rec = Recorder(tmp_path / "a.rrd", "test")
+    assert_all_passed(run_stage(LESSON, 5, rec=rec, strip_cells=40))
+    rec.close()
+    info = summarize(tmp_path / "a.rrd")
+    for entity in ("/stage5/equilateral_strip/mesh", "/stage5/equilateral_strip/springs"):
+        assert entity in info
+    assert "Mesh3D:vertex_colors" in info["/stage5/equilateral_strip/mesh"]["components"]
+
+
+def test_config_rejects_a_stretch_longer_than_a_spacing():
+    with pytest.raises(ParameterError, match="--strain"):
+        LESSON.validate(AreaSpringsConfig(strain=0.01, strip_cells=200))
+    with pytest.raises(ParameterError, match="--jitter"):
+        validate_config(AreaSpringsConfig(jitter=0.3))
+
+
+# ---------------------------------------------------------------- long-wavelength theory
+
+def test_cauchy_born_of_the_equilateral_lattice_is_isotropic_with_lambda_equal_mu():
+    m = M.equilateral_lattice(9, 8, 0.5)
+    C = cauchy_born_tensor(m.vertices, m.edges, 2.0 * m.edge_measure, m.total_measure)
+    d = np.eye(2)
+    iso = (2.0 / 8) * (np.einsum("ij,kl->ijkl", d, d) + np.einsum("ik,jl->ijkl", d, d) + np.einsum("il,jk->ijkl", d, d))
+    assert np.abs(C - iso).max() < 1e-12
+    for angle in np.linspace(0, np.pi, 7):
+        speeds = christoffel(C, [math.cos(angle), math.sin(angle)], 0.5)[0]
+        assert speeds == pytest.approx([math.sqrt(2 / 8 / 0.5), math.sqrt(6 / 8 / 0.5)], rel=1e-12)
+    E_eff, nu = young_poisson(C, 0)
+    assert E_eff == pytest.approx(2.0 / 3, rel=1e-12) and nu == pytest.approx(1 / 3, rel=1e-12)
+
+
+def test_cauchy_born_of_the_kuhn_tet_box():
+    m = M.tet_box(6, 6, 6, size=0.5)
+    C = bulk_tensor(m, m.edge_measure, 0.1)  # E = 1
+    assert C[0, 0, 0, 0] == pytest.approx(13 / 54, rel=1e-12)
+    assert C[0, 0, 0, 1] == pytest.approx(5 / 108, rel=1e-12)
+    speeds, pol = christoffel(C, [1, 1, 1], 1.0)
+    assert speeds[-1] == pytest.approx(math.sqrt(10 / 27), rel=1e-12)
+    assert abs(abs(pol[:, -1] @ np.ones(3)) / math.sqrt(3) - 1) < 1e-12  # purely longitudinal
+    assert max_speed(C, 1.0) == pytest.approx(math.sqrt(10 / 27), rel=1e-3)
+    # area scaling: the whole-mesh sum equals the bulk tensor; one k for all springs scales as 1/h^2
+    assert np.abs(cauchy_born_tensor(m.vertices, m.edges, m.edge_measure, m.total_measure) - C).max() < 1e-12
+    m2 = M.tet_box(6, 6, 6, size=0.25)
+    ratio = bulk_tensor(m2, m2.rest_lengths, 0.05)[0, 0, 0, 0] / bulk_tensor(m, m.rest_lengths, 0.1)[0, 0, 0, 0]
+    assert ratio == pytest.approx(4.0, rel=1e-12)
+
+
+def test_relaxed_stiffness_regular_grid_has_nothing_to_relax_jitter_softens():
+    from engine.energies.springs import SpringEnergy
+    for mesh, softer in ((M.right_triangle_grid(14, 14, 13.0, 13.0, "one-way"), False),
+                         (M.jitter(M.right_triangle_grid(14, 14, 13.0, 13.0, "one-way"), 0.25, 4), True)):
+        c = mesh.edge_measure
+        X3 = M.embed_3d(mesh).vertices
+        sp = SpringEnergy.from_rest(X3, mesh.edges, c=c)
+        blocks = sp.hessian_blocks_numpy(vec3_ndarray(len(X3), X3), psd=False)
+        window = np.linalg.norm(mesh.vertices[mesh.triangles].mean(axis=1) - 6.5, axis=1) <= 4.0
+        C_rel, C_aff = relaxed_stiffness_2d(mesh, blocks, c, window)
+        if not softer:
+            C = cauchy_born_tensor(mesh.vertices, mesh.edges, c, mesh.total_measure)
+            assert np.abs(C_rel - C).max() < 1e-12 and np.abs(C_aff - C).max() < 1e-12
+        else:
+            from engine.waves import voigt_2d
+            gap = np.linalg.eigvalsh(voigt_2d(C_aff) - voigt_2d(C_rel))
+            assert gap.min() > -1e-12 and gap.max() > 1e-3  # relaxation only lowers the energy
+
+
+def test_mode_probe_and_phase_frequency():
+    m = M.equilateral_lattice(6, 6, 1.0)
+    X = M.embed_3d(m).vertices
+    mass = M.lumped_masses(m, 1.0)
+    probe = ModeProbe(X, mass, [1, 1], [1, -1], 0.3, (2.0, 2.0, 0.0), np.ones(len(X), bool))
+    assert probe.amplitude(X + probe.displacement(1e-3)) == pytest.approx(1e-3, rel=1e-12)
+    t = np.linspace(0, 2.0, 60)
+    assert phase_frequency(t, 0.7 * np.cos(1.3 * t)) == pytest.approx(1.3, rel=1e-10)
+
+
+# ------------------------------------------------------- derivatives of the mesh energies
+
+def _fd_gradient_error(X, edges, c, x):
+    model = Model.from_springs(X, edges, c=c)
+    sp = model.springs
+    f = vec3_ndarray(len(x))
+    sp.add_forces(vec3_ndarray(len(x), x), f)
+    f = f.to_numpy().reshape(-1)
+    h = 1e-6
+    g = np.zeros(x.size)
+    for a in range(x.size):
+        xp, xm = x.copy(), x.copy()
+        xp.reshape(-1)[a] += h
+        xm.reshape(-1)[a] -= h
+        g[a] = (sp.energy(vec3_ndarray(len(x), xp)) - sp.energy(vec3_ndarray(len(x), xm))) / (2 * h)
+    return np.linalg.norm(g + f) / np.linalg.norm(g)
+
+
+@pytest.mark.parametrize("which", ["jittered sheet", "jittered tet box"])
+def test_area_spring_energy_gradient_by_central_differences(which):
+    rng = np.random.default_rng(11)
+    if which == "jittered sheet":
+        mesh = M.embed_3d(M.jitter(M.right_triangle_grid(6, 5, 1.0, 0.8, "alternating"), 0.25, 2))
+    else:
+        mesh = M.jitter(M.tet_box(4, 4, 4, size=0.6), 0.25, 3)
+    X = mesh.vertices
+    c = 3.0 * M.edge_measure(mesh)
+    x = X + 0.05 * rng.standard_normal(X.shape)  # stretched and compressed springs, out of plane too
+    assert _fd_gradient_error(X, mesh.edges, c, x) < 1e-6
+
+
+def test_a_too_short_wavelength_fails_honestly():
+    """Eight cells per wavelength is far from the long-wavelength limit: the lattice is
+    dispersive, and the claims must then fail rather than be hidden."""
+    s = run_stage(LESSON, 4, box_wavelength=8)
+    e = s["tet box, h: P along (1,1,1) = Cauchy-Born sqrt(10/27) c0"]
+    assert not e.passed and e.measured < e.theory
