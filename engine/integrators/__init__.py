@@ -4,17 +4,22 @@
 Every integrator has ``name``, ``implicit`` and ``step(model, state, dt, n_steps=1)``; explicit
 ones also ``begin(model, state)`` / ``advance(model, state, dt)`` (used by
 :func:`engine.integrators.explicit.run` for per-step blow-up checks).
-Further integrators (e.g. backward-euler) join with :func:`register`.
+Further integrators join with :func:`register`.  ``backward-euler``
+(:mod:`engine.integrators.implicit`, default linear solver PCG) is registered here; use
+:func:`make_integrator` to get one with other options (``--solver``, ``--tol``, Newton iterations).
 """
 from __future__ import annotations
 
 from engine.integrators.explicit import (BlowUpError, ForwardEuler, SymplecticEuler, VelocityVerlet, run,
                                          stable_dt_estimate)
+from engine.integrators.implicit import BackwardEuler
+from engine.linalg import SOLVERS, SolverError
 
 INTEGRATORS: dict[str, object] = {
     "forward-euler": ForwardEuler(),
     "symplectic-euler": SymplecticEuler(),
     "velocity-verlet": VelocityVerlet(),
+    "backward-euler": BackwardEuler(),  # PCG, tol 1e-8, one Newton (Baraff-Witkin) iteration
 }
 
 
@@ -37,4 +42,26 @@ def get(name: str):
         raise ValueError(f"unknown integrator {name!r}; valid names: {', '.join(INTEGRATORS)}") from None
 
 
-__all__ = ["INTEGRATORS", "get", "register", "names", "BlowUpError", "run", "stable_dt_estimate"]
+def make_integrator(name: str, solver: str | None = None, tol: float | None = None,
+                    newton_iterations: int | None = None, **options):
+    """An integrator for ``name`` with options (for ``--integrator/--solver/--tol``).
+
+    "backward-euler": a new :class:`BackwardEuler` (solver "pcg" | "cholesky", default pcg; tol
+    default 1e-8; newton_iterations default 1; further keyword options such as newton_tol,
+    line_search, rayleigh_alpha, rayleigh_beta, max_iter are passed on).
+    Explicit names: the registered instance; the implicit-only options are ignored.
+    ValueError (one line, listing the valid names) for an unknown name."""
+    if name == "backward-euler":
+        kw = dict(options)
+        if solver is not None:
+            kw["solver"] = solver
+        if tol is not None:
+            kw["tol"] = tol
+        if newton_iterations is not None:
+            kw["newton_iterations"] = newton_iterations
+        return BackwardEuler(**kw)
+    return get(name)
+
+
+__all__ = ["INTEGRATORS", "get", "register", "names", "make_integrator", "BackwardEuler", "SOLVERS",
+           "SolverError", "BlowUpError", "run", "stable_dt_estimate"]

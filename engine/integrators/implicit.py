@@ -1,0 +1,330 @@
+"""Backward Euler as Newton's method on the incremental potential (Baraff & Witkin 1998).
+
+Backward Euler for M dv/dt = f(x) + M g (f = -grad W, lumped M, pinned vertices fixed):
+
+    x+ = x_n + dt v+,      M (v+ - v_n) = dt (f(x+) + M g - D v+)                        (BE)
+
+with optional Rayleigh damping D = alpha M + beta H_n (H_n the PSD Hessian at x_n, frozen for
+the step).  (BE) is the stationarity condition of the *incremental potential*
+
+    Phi(x) = 1/(2 dt^2) |x - x_n - dt v_n|_M^2 + W(x) - W(x_n) - sum_i m_i g.(x_i - x_n,i)
+             + 1/(2 dt) (x - x_n)^T D (x - x_n)                                           (IP)
+
+(grad Phi = 0  <=>  (BE) with v+ = (x - x_n)/dt), so a step minimises Phi.  At x = x_n,
+Phi = the kinetic energy 1/2 |v_n|_M^2.
+
+Newton on (IP) from x = x_n, with the PSD Hessian (springs (S4), bending Gauss-Newton):
+
+    A dx = -grad Phi(x),    A = (1/dt^2 + alpha/dt) M + (1 + beta/dt) H(x)               (N1)
+
+(exact at the first iteration; afterwards the damping part uses H(x) for H_n, a
+quasi-Newton matrix that is still SPD, so dx is a descent direction).  One iteration from
+x_n is exactly Baraff & Witkin's linearised step, their eq. (16)
+
+    (M - dt^2 df/dx) dv = dt (f_n + dt df/dx v_n),   dx = dt (v_n + dv)
+
+(substitute dv = dx/dt - v_n into (N1)).  More iterations converge to the true backward
+Euler step.  With ``line_search`` each Newton step is backtracked (halving) until Armijo's
+condition  Phi(x + s dx) <= Phi(x) + 1e-4 s grad Phi . dx  holds, so Phi decreases
+monotonically; the values are kept in ``last_objectives``.  If no step length down to 2^-30
+decreases Phi (only at round-off level, next to the minimum) the iteration stops there.
+
+Newton stops when |grad Phi(x)| <= newton_tol |grad Phi(x_n)|.  Linear solves go through
+:mod:`engine.linalg` ("pcg" or "cholesky", relative tolerance ``tol``); a linear solve that
+does not reach ``tol`` raises :class:`engine.linalg.SolverError` and leaves the state as
+it was before the step.  Finally v+ = (x+ - x_n)/dt; pinned vertices keep x and get v = 0.
+
+Energy behaviour (DESIGN section 6): for a linear problem every mode's energy is multiplied
+by exactly 1/(1 + w^2 dt^2) per step (the amplification matrix in the variables (w x, v) is
+a rotation divided by sqrt(1 + w^2 dt^2)); the method is first-order accurate and stable at
+any dt.
+"""
+
+import math
+from dataclasses import dataclass, field
+
+import taichi as ti
+
+from engine.errors import ParameterError
+from engine.linalg import SOLVERS, LinearSolver, SolverError, make_solver
+from engine.model import Model, State, copy_vec3, scalar_array, vec3_array, zero_vec3
+
+ARMIJO_C1 = 1e-4
+MAX_BACKTRACKS = 30
+EXACT_RETRY = 5     # after a failure, retry the exact Hessian every EXACT_RETRY Newton iterations
+EXACT_BELOW = 1e-2  # try the exact Hessian once |grad Phi| < EXACT_BELOW |grad Phi(x_n)|
+
+
+# --------------------------------------------------------------------------------------------
+# Kernels (one pass over the vertices each; pinned vertices: inv_mass == 0)
+# --------------------------------------------------------------------------------------------
+
+@ti.kernel
+def _be_residual(x: vec3_array, xn: vec3_array, v: vec3_array, f: vec3_array, mass: scalar_array,
+                 inv_mass: scalar_array, inv_dt2: float, alpha_over_dt: float, dt: float,
+                 rhs: vec3_array) -> float:
+    # rhs = -grad Phi = f(x) + M g - M (x - x_n - dt v_n)/dt^2 - alpha M (x - x_n)/dt  (free; f has M g)
+    # returns |rhs|^2
+    s = 0.0
+    for i in range(x.shape[0]):
+        r = ti.math.vec3(0.0)
+        if inv_mass[i] > 0.0:
+            d = x[i] - xn[i]
+            r = f[i] - mass[i] * (inv_dt2 * (d - dt * v[i]) + alpha_over_dt * d)
+        rhs[i] = r
+        s += r.dot(r)
+    return s
+
+
+@ti.kernel
+def _be_add_scaled(rhs: vec3_array, hq: vec3_array, coef: float, inv_mass: scalar_array) -> float:
+    # rhs -= coef hq (free); returns |rhs|^2   (the beta H_n (x - x_n)/dt damping force)
+    s = 0.0
+    for i in range(rhs.shape[0]):
+        if inv_mass[i] > 0.0:
+            rhs[i] -= coef * hq[i]
+            s += rhs[i].dot(rhs[i])
+    return s
+
+
+@ti.kernel
+def _be_inertia(x: vec3_array, xn: vec3_array, v: vec3_array, mass: scalar_array, inv_mass: scalar_array,
+                g: ti.math.vec3, inv_dt2: float, alpha_over_dt: float, dt: float) -> float:
+    # sum_free m_i [ |x - x_n - dt v_n|^2/(2 dt^2) + alpha/(2 dt) |x - x_n|^2 - g.(x - x_n) ]   (IP)
+    s = 0.0
+    for i in range(x.shape[0]):
+        if inv_mass[i] > 0.0:
+            d = x[i] - xn[i]
+            e = d - dt * v[i]
+            s += mass[i] * (0.5 * inv_dt2 * e.dot(e) + 0.5 * alpha_over_dt * d.dot(d) - g.dot(d))
+    return s
+
+
+@ti.kernel
+def _axpy_into(x: vec3_array, dx: vec3_array, s: float, out: vec3_array):
+    for i in range(x.shape[0]):
+        out[i] = x[i] + s * dx[i]
+
+
+@ti.kernel
+def _sub_into(a: vec3_array, b: vec3_array, out: vec3_array):
+    for i in range(a.shape[0]):
+        out[i] = a[i] - b[i]
+
+
+@ti.kernel
+def _dot(a: vec3_array, b: vec3_array) -> float:
+    s = 0.0
+    for i in range(a.shape[0]):
+        s += a[i].dot(b[i])
+    return s
+
+
+@ti.kernel
+def _be_finish(x: vec3_array, xn: vec3_array, v: vec3_array, inv_mass: scalar_array, inv_dt: float):
+    # v+ = (x+ - x_n)/dt ; pinned: x = x_n, v = 0
+    for i in range(x.shape[0]):
+        if inv_mass[i] > 0.0:
+            v[i] = inv_dt * (x[i] - xn[i])
+        else:
+            x[i] = xn[i]
+            v[i] = ti.math.vec3(0.0)
+
+
+# --------------------------------------------------------------------------------------------
+# Integrator
+# --------------------------------------------------------------------------------------------
+
+@dataclass
+class StepInfo:
+    """What the last step did.  Lists have one entry per Newton iteration (linear solve), except
+    ``gradient_norms`` (|grad Phi| before each solve, plus after the last one when
+    newton_iterations > 1) and ``objectives`` (Phi at x_n, then after each accepted step)."""
+    newton_iterations: int = 0
+    linear_iterations: list = field(default_factory=list)
+    linear_residuals: list = field(default_factory=list)
+    gradient_norms: list = field(default_factory=list)
+    objectives: list = field(default_factory=list)
+    step_sizes: list = field(default_factory=list)
+    newton_converged: bool = False
+    line_search_failed: bool = False
+
+
+class BackwardEuler:
+    """Backward Euler by Newton on the incremental potential (module docstring).
+
+    Parameters
+      solver            "pcg" | "cholesky" (or a LinearSolver instance)
+      tol               relative residual of each linear solve (engine.linalg (L3))
+      newton_iterations Newton iterations per step (1 = Baraff & Witkin's linearised step)
+      newton_tol        stop when |grad Phi| <= newton_tol |grad Phi(x_n)|
+      line_search       backtracking Armijo line search on Phi (monotone decrease)
+      rayleigh_alpha    mass-proportional damping alpha [1/s]   (D = alpha M + beta H)
+      rayleigh_beta     stiffness-proportional damping beta [s]
+      max_iter          CG iteration limit of each linear solve (pcg)
+
+    ``step(model, state, dt, n_steps=1)``; ``advance(model, state, dt)`` is one step.
+    After a step: ``last_info`` (:class:`StepInfo`), ``last_objectives`` (Phi values);
+    totals since :meth:`reset_stats`: ``total_steps``, ``total_solves``, ``total_linear_iterations``.
+    """
+
+    name = "backward-euler"
+    implicit = True
+
+    def __init__(self, solver="pcg", tol: float = 1e-8, newton_iterations: int = 1, newton_tol: float = 1e-8,
+                 line_search: bool = True, rayleigh_alpha: float = 0.0, rayleigh_beta: float = 0.0,
+                 max_iter: int = 1000, exact_near_solution: bool = True):
+        if not isinstance(solver, LinearSolver) and solver not in SOLVERS:
+            raise ParameterError(f"--solver must be one of {', '.join(SOLVERS)} (got {solver!r})")
+        tol = float(tol)
+        if not (math.isfinite(tol) and 0.0 < tol < 1.0):
+            raise ParameterError(f"--tol must be in (0, 1) (got {tol!r})")
+        newton_iterations = int(newton_iterations)
+        if newton_iterations < 1:
+            raise ParameterError(f"newton_iterations must be >= 1 (got {newton_iterations})")
+        newton_tol = float(newton_tol)
+        if not (math.isfinite(newton_tol) and newton_tol >= 0.0):
+            raise ParameterError(f"newton_tol must be finite and >= 0 (got {newton_tol!r})")
+        for nm, val in (("rayleigh_alpha", rayleigh_alpha), ("rayleigh_beta", rayleigh_beta)):
+            if not (math.isfinite(float(val)) and float(val) >= 0.0):
+                raise ParameterError(f"{nm} must be finite and >= 0 (got {val!r})")
+        self.solver = make_solver(solver, tol=tol, max_iter=max_iter)
+        self.tol = self.solver.tol
+        self.newton_iterations = newton_iterations
+        self.newton_tol = newton_tol
+        self.line_search = bool(line_search)
+        self.rayleigh_alpha = float(rayleigh_alpha)
+        self.rayleigh_beta = float(rayleigh_beta)
+        self.exact_near_solution = bool(exact_near_solution)
+        self.last_info = StepInfo()
+        self.reset_stats()
+
+    @property
+    def last_objectives(self) -> list:
+        """Phi at x_n and after each accepted Newton step of the last step (empty without line search)."""
+        return self.last_info.objectives
+
+    def reset_stats(self) -> None:
+        self.total_steps = 0
+        self.total_solves = 0
+        self.total_linear_iterations = 0
+
+    def begin(self, model: Model, state: State) -> None:
+        """Nothing to prepare (kept for the integrator protocol)."""
+
+    def step(self, model: Model, state: State, dt: float, n_steps: int = 1) -> None:
+        dt = float(dt)
+        for _ in range(int(n_steps)):
+            self.advance(model, state, dt)
+
+    # -- one step ------------------------------------------------------------------------------
+    def _objective(self, model, x, xn, v, dt, W_n, work) -> float:
+        """Phi(x) of (IP)."""
+        phi = _be_inertia(x, xn, v, model.mass_nd, model.inv_mass_nd, model.gravity_vec, 1.0 / (dt * dt),
+                          self.rayleigh_alpha / dt, dt)
+        phi += model.elastic_energy(x) - W_n
+        if self.rayleigh_beta > 0.0:
+            d, hq = work["d"], work["hq"]
+            _sub_into(x, xn, d)
+            zero_vec3(hq)
+            model.add_hessian_product(xn, d, hq, True)
+            phi += 0.5 * self.rayleigh_beta / dt * _dot(d, hq)
+        return phi
+
+    def advance(self, model: Model, state: State, dt: float) -> None:
+        dt = float(dt)
+        if not (math.isfinite(dt) and dt > 0.0):
+            raise ParameterError(f"dt must be finite and > 0 (got {dt!r})")
+        work = {k: model.work_vec3("be_" + k) for k in ("xn", "f", "rhs", "dx", "trial", "d", "hq")}
+        x, v = state.x, state.v
+        xn, f, rhs, dx, trial = work["xn"], work["f"], work["rhs"], work["dx"], work["trial"]
+        inv_mass = model.inv_mass_nd
+        inv_dt2, a_dt = 1.0 / (dt * dt), self.rayleigh_alpha / dt
+        mass_coef, hess_coef = inv_dt2 + a_dt, 1.0 + self.rayleigh_beta / dt
+        copy_vec3(x, xn)
+
+        info = StepInfo()
+        self.last_info = info
+        W_n = phi = 0.0
+        if self.line_search:
+            W_n = model.elastic_energy(xn)
+            phi = self._objective(model, x, xn, v, dt, W_n, work)  # = kinetic energy at x_n
+            info.objectives.append(phi)
+        g0 = None
+        k = 0
+        exact_ok = True
+        while True:
+            # rhs = -grad Phi(x)
+            model.forces(x, f)
+            g2 = _be_residual(x, xn, v, f, model.mass_nd, inv_mass, inv_dt2, a_dt, dt, rhs)
+            if self.rayleigh_beta > 0.0 and k > 0:
+                d, hq = work["d"], work["hq"]
+                _sub_into(x, xn, d)
+                zero_vec3(hq)
+                model.add_hessian_product(xn, d, hq, True)
+                g2 = _be_add_scaled(rhs, hq, self.rayleigh_beta / dt, inv_mass)
+            gnorm = math.sqrt(g2)
+            info.gradient_norms.append(gnorm)
+            if g0 is None:
+                g0 = gnorm
+            if gnorm <= self.newton_tol * g0 or gnorm == 0.0:
+                info.newton_converged = True
+                break
+            if k == self.newton_iterations:
+                break
+            # Newton direction (N1), filtered on pinned vertices; near the solution optionally with
+            # the exact Hessian (quadratic convergence), falling back to the PSD one where it fails
+            use_exact = (self.exact_near_solution and self.newton_iterations > 1 and exact_ok
+                         and gnorm < EXACT_BELOW * g0)
+            if k == 0 or self.rayleigh_beta == 0.0:   # x = x_n: the damping Hessian is H(x)
+                lin = self.solver.solve(model, x, rhs, dx, mass_coef, hess_coef, psd=not use_exact)
+            else:                                      # H(x) + (beta/dt) H_n
+                lin = self.solver.solve(model, x, rhs, dx, mass_coef, 1.0, psd=not use_exact,
+                                        extra=(self.rayleigh_beta / dt, xn))
+            self.total_solves += 1
+            self.total_linear_iterations += lin.iterations
+            slope = -_dot(rhs, dx) if lin.converged else 0.0  # grad Phi . dx < 0: descent
+            if use_exact and not (lin.converged and slope < 0.0):
+                exact_ok = False  # indefinite: back to the PSD Hessian, same iteration
+                continue
+            info.linear_iterations.append(lin.iterations)
+            info.linear_residuals.append(lin.residual)
+            if not lin.converged:
+                copy_vec3(xn, x)  # leave the state as it was
+                raise SolverError(f"backward-euler step at t={state.t:.6g} s, Newton iteration {k + 1}: "
+                                  f"{lin.describe()}; raise max_iter or tol, or use solver='cholesky'")
+            k += 1
+            info.newton_iterations = k
+            if k % EXACT_RETRY == 0:
+                exact_ok = True  # retry the exact Hessian now and then
+            if self.line_search:
+                s = 1.0
+                accepted = False
+                for _ in range(MAX_BACKTRACKS + 1):
+                    _axpy_into(x, dx, s, trial)
+                    phi_t = self._objective(model, trial, xn, v, dt, W_n, work)
+                    if phi_t < phi and phi_t <= phi + ARMIJO_C1 * s * slope:
+                        accepted = True
+                        break
+                    s *= 0.5
+                if not accepted:
+                    info.line_search_failed = True  # no measurable decrease (round-off level): stop here
+                    break
+                if use_exact and s < 1.0:
+                    exact_ok = False
+                copy_vec3(trial, x)
+                phi = phi_t
+                info.objectives.append(phi)
+                info.step_sizes.append(s)
+            else:
+                _axpy_into(x, dx, 1.0, x)
+                info.step_sizes.append(1.0)
+            if self.newton_iterations == 1:
+                break  # Baraff & Witkin: one linearised step, no final gradient evaluation
+        _be_finish(x, xn, v, inv_mass, 1.0 / dt)
+        state.t += dt
+        self.total_steps += 1
+
+    def __repr__(self) -> str:
+        return (f"<integrator backward-euler solver={self.solver.name} tol={self.tol:g} "
+                f"newton_iterations={self.newton_iterations} line_search={self.line_search}>")

@@ -1,0 +1,824 @@
+"""Linear solvers for the implicit integrator and the static solver.
+
+Every Newton step of backward Euler (Baraff & Witkin 1998, section 5; see
+:mod:`engine.integrators.implicit`) and of the static solver (:mod:`engine.statics`) solves
+
+    A y = b,        A = a M + c H(x) [+ s H(x2)]                                           (L1)
+
+with M the lumped (diagonal) mass matrix, H(x) the PSD-projected Hessian of all the model's
+energies (springs (S4), bending Gauss-Newton; engine/energies/*.py; ``psd=False`` gives the
+exact, possibly indefinite, Hessian) and scalars a >= 0, c > 0 (backward Euler:
+a = 1/dt^2 + alpha/dt, c = 1 + beta/dt; statics: a = Levenberg mu, c = 1).  The optional
+term s H_psd(x2) is backward Euler's stiffness damping beta/dt H(x_n) during later Newton
+iterations (``extra=(s, x2)``).
+
+Pinned vertices are handled exactly, as in Baraff & Witkin's *filtered* conjugate gradient
+(section 5.3, the filter S that zeroes the constrained components): the unknowns of a
+pinned vertex are fixed at y_i = 0 and its equations are dropped, i.e. we solve
+
+    S A S y = S b,      S = diag(1 free, 0 pinned)                                         (L2)
+
+which is the same as eliminating the pinned rows/columns and putting 1 on their diagonal.
+The reported residual is the true relative residual over the free rows,
+
+    residual = ||S (b - A y)|| / ||S b||         (0 if S b = 0)                           (L3)
+
+Two solvers share one interface (:func:`make_solver`):
+
+``pcg``       preconditioned conjugate gradient in Taichi kernels, matrix-free.  3x3 block-
+              Jacobi preconditioner from each energy's add_hessian_diagonal (plus a m_i I).
+              Three code paths, chosen per solve:
+              * whole-loop (springs and/or one bending energy, psd, below SERIAL_BELOW
+                vertices): the entire CG loop is one serial kernel: spring blocks K_e
+                (SpringEnergy.hessian_blocks, once per solve) gathered per vertex over the CSR
+                incidence, bending as rank-one hinge factors w_h (H_h = w_h w_h^T, extracted
+                once per solve from the Gauss-Newton blocks), dot products, axpys and the
+                preconditioner fused.  No launch per iteration.
+              * fused parallel (same energies, larger meshes): three launches per iteration
+                (per-hinge s_h = w_h . p; per-vertex direction + product + p.q; step +
+                preconditioner + r.z, r.r).
+              * generic (any energies, exact Hessian, extra term): each energy's
+                add_block_product or add_hessian_product, 4 + per-energy launches.
+              When the recurrence says "converged" the true residual (L3) is computed and,
+              if it drifted above the tolerance, CG restarts from the current y (residual
+              replacement).
+``cholesky``  direct sparse LL^T (Eigen, ``ti.linalg.SparseSolver``, f64) of A assembled from
+              the per-element blocks by ``ti.linalg.SparseMatrixBuilder(dtype=ti.f64)`` in one
+              kernel per energy (the builder's default is f32 and it never checks its capacity,
+              so the triplet capacity is computed exactly).  Only the lower triangle is
+              written (Eigen's LL^T reads nothing else): 21 triplets per spring instead of
+              4 x 9, 78 per hinge instead of 16 x 9, 3 per vertex; twice the element part with
+              an extra term.  That halves assembly (64x64 cloth: 65 -> ~35 ms).  The pattern is
+              analysed once per model (cached on the solver), the numbers are factorised on
+              every solve.  The residual (L3) is checked with a matrix-free product; up to two
+              steps of iterative refinement are taken if it is above the tolerance.
+
+A solve that ends above the tolerance (or a failed factorisation, or p.Ap <= 0 in CG) is
+reported (``LinearSolveInfo.converged`` False, ``message``) and callers raise
+:class:`SolverError` (``info.check()``); it is never silently accepted.
+
+Interface (``x``, ``b``, ``y`` are vec3 ndarrays with one entry per model vertex)::
+
+    solver = make_solver("pcg" | "cholesky", tol=1e-8, max_iter=1000)
+    info = solver.solve(model, x, b, y, mass_coef=a, hess_coef=c, psd=True, extra=None)
+    info.iterations, info.residual, info.converged; info.check()     # raises SolverError
+
+``y`` is overwritten (0 on pinned vertices); b on pinned vertices is ignored.
+:func:`apply_system` computes S A p matrix-free (tests, residual checks).
+
+Measured (2-core CPU, f64, 64x64 cloth with springs + bending, dt = 1/60 s): see the README
+of the implicit-integration issue / the integrator docstring.
+"""
+
+import math
+import weakref
+from typing import NamedTuple
+
+import numpy as np
+import taichi as ti
+
+from engine.model import Model, float_dtype, scalar_array, vec3_array, vec3_ndarray, zero_vec3
+
+__all__ = ["SolverError", "LinearSolveInfo", "LinearSolver", "PCGSolver", "CholeskySolver", "SOLVERS",
+           "make_solver", "apply_system", "triplet_capacity"]
+
+SOLVERS = ("pcg", "cholesky")
+# Below this many vertices PCG runs serialised: with springs + bending the whole CG loop is one
+# serial kernel.  Measured on the 2-core CPU (backward Euler, cloth, ms per CG iteration):
+# 32x32: 0.10 serial-whole vs 0.60 parallel 3-launch; 64x64: 0.37 vs 0.84; 128x128: 1.52 vs 1.52
+# (a parallel launch costs ~0.1 ms and each ndarray argument ~5 us of Python; the loops are
+# memory-bound, so the second thread gains little).
+SERIAL_BELOW = 20000
+
+mat3_array = ti.types.ndarray(dtype=ti.math.mat3, ndim=1)
+mat3_array2 = ti.types.ndarray(dtype=ti.math.mat3, ndim=2)
+edge_array = ti.types.ndarray(dtype=ti.math.ivec2, ndim=1)
+hinge_array = ti.types.ndarray(dtype=ti.i32, ndim=2)
+int_array = ti.types.ndarray(dtype=ti.i32, ndim=1)
+vec3_array2 = ti.types.ndarray(dtype=ti.math.vec3, ndim=2)
+
+
+class SolverError(RuntimeError):
+    """A linear (or Newton) solve did not reach its tolerance; one-line message naming the
+    solver, tolerance, residual and iterations."""
+
+
+class LinearSolveInfo(NamedTuple):
+    """Result of one linear solve: ``iterations`` (CG iterations; for cholesky 1 + refinement
+    steps), ``residual`` (true relative residual (L3)), ``converged`` (residual <= tol),
+    ``solver`` name, ``tol``, ``max_iter`` and ``message`` (why it failed, if it did)."""
+    iterations: int
+    residual: float
+    converged: bool
+    solver: str = ""
+    tol: float = 0.0
+    max_iter: int = 0
+    message: str = ""
+
+    def describe(self) -> str:
+        state = "converged" if self.converged else "did NOT converge"
+        text = (f"{self.solver} linear solve {state}: relative residual {self.residual:.3e} "
+                f"{'<=' if self.converged else '>'} tol {self.tol:.1e} after {self.iterations} iterations "
+                f"(max_iter={self.max_iter})")
+        return text + (f"; {self.message}" if self.message else "")
+
+    def check(self) -> "LinearSolveInfo":
+        """Return self, or raise :class:`SolverError` if the solve did not converge."""
+        if not self.converged:
+            raise SolverError(self.describe())
+        return self
+
+
+# --------------------------------------------------------------------------------------------
+# Kernels: matrix-free operator pieces and PCG (pinned vertices: inv_mass == 0)
+# --------------------------------------------------------------------------------------------
+
+@ti.kernel
+def _mass_product(p: vec3_array, mass: scalar_array, a: float, q: vec3_array):
+    # q = a M p  (start of q = A p; the energies then add H p)
+    for i in range(p.shape[0]):
+        q[i] = a * mass[i] * p[i]
+
+
+@ti.kernel
+def _axpy_inplace(q: vec3_array, t: vec3_array, s: float):
+    for i in range(q.shape[0]):
+        q[i] += s * t[i]
+
+
+@ti.kernel
+def _filtered_scale(q: vec3_array, inv_mass: scalar_array, c: float):
+    # q <- c S q  (L2)
+    for i in range(q.shape[0]):
+        if inv_mass[i] > 0.0:
+            q[i] = c * q[i]
+        else:
+            q[i] = ti.math.vec3(0.0)
+
+
+@ti.kernel
+def _residual_norms(b: vec3_array, q: vec3_array, inv_mass: scalar_array, c: float) -> ti.math.vec2:
+    # (|S(b - c q)|^2, |S b|^2)   (L3), q = A' y with A = c A'
+    acc = ti.math.vec2(0.0)
+    for i in range(b.shape[0]):
+        if inv_mass[i] > 0.0:
+            d = b[i] - c * q[i]
+            acc += ti.math.vec2(d.dot(d), b[i].dot(b[i]))
+    return acc
+
+
+@ti.kernel
+def _diag_init(mass: scalar_array, a: float, D: mat3_array):
+    # D_i = a m_i I  (the energies add their 3x3 diagonal blocks H_ii)
+    for i in range(mass.shape[0]):
+        D[i] = a * mass[i] * ti.math.mat3(1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
+
+
+@ti.kernel
+def _diag_invert(D: mat3_array, inv_mass: scalar_array):
+    # block Jacobi: D_i <- D_i^-1 (free, SPD block); scalar Jacobi if the block is singular; 0 if pinned
+    for i in range(D.shape[0]):
+        B = D[i]
+        Binv = ti.math.mat3(0.0)
+        if inv_mass[i] > 0.0:
+            det = B.determinant()
+            scale = ti.abs(B[0, 0]) + ti.abs(B[1, 1]) + ti.abs(B[2, 2])
+            if det > 1e-12 * scale * scale * scale and scale > 0.0:
+                Binv = B.inverse()
+            else:
+                for k in ti.static(range(3)):
+                    if B[k, k] > 0.0:
+                        Binv[k, k] = 1.0 / B[k, k]
+        D[i] = Binv
+
+
+@ti.kernel
+def _pcg_restart(b: vec3_array, q: vec3_array, inv_mass: scalar_array, c: float, Pinv: mat3_array,
+                 mass: scalar_array, a: float, r: vec3_array, z: vec3_array, p: vec3_array) -> ti.math.vec2:
+    # on entry q = A' y:  r = S(b/c - q), z = P^-1 r, p = z, q = a' M p; returns (r.z, r.r)
+    acc = ti.math.vec2(0.0)
+    for i in range(b.shape[0]):
+        ri = ti.math.vec3(0.0)
+        if inv_mass[i] > 0.0:
+            ri = b[i] / c - q[i]
+        zi = Pinv[i] @ ri
+        r[i] = ri
+        z[i] = zi
+        p[i] = zi
+        q[i] = a * mass[i] * zi
+        acc += ti.math.vec2(ri.dot(zi), ri.dot(ri))
+    return acc
+
+
+@ti.kernel
+def _pcg_direction(beta: float, z: vec3_array, p: vec3_array, mass: scalar_array, a: float, q: vec3_array,
+                   serial: ti.template()):
+    # p = z + beta p ; q = a M p   (p, z are 0 on pinned vertices)
+    ti.loop_config(serialize=serial)
+    for i in range(p.shape[0]):
+        pi = z[i] + beta * p[i]
+        p[i] = pi
+        q[i] = a * mass[i] * pi
+
+
+@ti.kernel
+def _free_dot(u: vec3_array, w: vec3_array, inv_mass: scalar_array, serial: ti.template()) -> float:
+    s = 0.0
+    ti.loop_config(serialize=serial)
+    for i in range(u.shape[0]):
+        if inv_mass[i] > 0.0:
+            s += u[i].dot(w[i])
+    return s
+
+
+@ti.kernel
+def _pcg_step(alpha: float, p: vec3_array, q: vec3_array, inv_mass: scalar_array, Pinv: mat3_array,
+              y: vec3_array, r: vec3_array, z: vec3_array, serial: ti.template()) -> ti.math.vec2:
+    # y += alpha p ; r -= alpha S q ; z = P^-1 r ; returns (r.z, r.r)
+    acc = ti.math.vec2(0.0)
+    ti.loop_config(serialize=serial)
+    for i in range(p.shape[0]):
+        if inv_mass[i] > 0.0:
+            y[i] += alpha * p[i]
+            ri = r[i] - alpha * q[i]
+            zi = Pinv[i] @ ri
+            r[i] = ri
+            z[i] = zi
+            acc += ti.math.vec2(ri.dot(zi), ri.dot(ri))
+    return acc
+
+
+@ti.kernel
+def _hinge_factors(blocks: mat3_array2, w: vec3_array2):
+    # The PSD (Gauss-Newton) hinge Hessian is rank one, H_ab = c g_a g_b^T (engine/energies/bending.py),
+    # so H = w w^T with w_a = H_ak e_j / sqrt(H_kk[j, j]) for the largest diagonal entry (k, j).
+    for h in range(blocks.shape[0]):
+        best = 0.0
+        kb = 0
+        jb = 0
+        for k in ti.static(range(4)):
+            for j in ti.static(range(3)):
+                d = blocks[h, 5 * k][j, j]
+                if d > best:
+                    best = d
+                    kb = k
+                    jb = j
+        ej = ti.math.vec3(0.0)
+        for j in ti.static(range(3)):
+            if j == jb:
+                ej[j] = 1.0
+        scale = 0.0
+        if best > 0.0:
+            scale = 1.0 / ti.sqrt(best)
+        for a in ti.static(range(4)):
+            w[h, a] = scale * (blocks[h, 4 * a + kb] @ ej)
+
+
+@ti.kernel
+def _hinge_s(w: vec3_array2, hinges: hinge_array, z: vec3_array, p: vec3_array, beta: float, s: scalar_array,
+             serial: ti.template()):
+    # s_h = w_h . (z + beta p) over the hinge's four vertices (the new direction, formed on the fly)
+    ti.loop_config(serialize=serial)
+    for h in range(hinges.shape[0]):
+        acc = 0.0
+        for a in ti.static(range(4)):
+            v = hinges[h, a]
+            acc += w[h, a].dot(z[v] + beta * p[v])
+        s[h] = acc
+
+
+@ti.kernel
+def _fused_direction_product(beta: float, z: vec3_array, p: vec3_array, p_new: vec3_array, q: vec3_array,
+                             mass: scalar_array, inv_mass: scalar_array, a: float,
+                             s_off: int_array, s_edge: int_array, s_other: int_array, s_blocks: mat3_array,
+                             b_off: int_array, b_ent: int_array, w: vec3_array2, s: scalar_array,
+                             serial: ti.template()) -> float:
+    # p_new = z + beta p ; q = a' M p_new + sum_{e ~ i} K_e (p_new_i - p_new_j) + sum_{(h, slot) ~ i} s_h w_h,slot
+    # (springs (S4) blocks, hinges rank one); returns p_new . q over free vertices.  p and p_new are
+    # different buffers, so the neighbours' new directions are formed from (z, p) without a race.
+    acc = 0.0
+    ti.loop_config(serialize=serial)
+    for i in range(z.shape[0]):
+        pi = z[i] + beta * p[i]
+        qi = a * mass[i] * pi
+        for k in range(s_off[i], s_off[i + 1]):
+            j = s_other[k]
+            qi += s_blocks[s_edge[k]] @ (pi - (z[j] + beta * p[j]))
+        for k in range(b_off[i], b_off[i + 1]):
+            ent = b_ent[k]
+            qi += s[ent // 4] * w[ent // 4, ent % 4]
+        p_new[i] = pi
+        q[i] = qi
+        if inv_mass[i] > 0.0:
+            acc += pi.dot(qi)
+    return acc
+
+
+@ti.kernel
+def _pcg_whole_serial(beta0: float, rz0: float, target2: float, max_iter: ti.i32,
+                      z: vec3_array, p: vec3_array, q: vec3_array, r: vec3_array, y: vec3_array,
+                      mass: scalar_array, inv_mass: scalar_array, a: float, Pinv: mat3_array,
+                      s_off: int_array, s_edge: int_array, s_other: int_array, s_blocks: mat3_array,
+                      hinges: hinge_array, n_hinges: ti.i32, b_off: int_array, b_ent: int_array,
+                      w: vec3_array2, s: scalar_array) -> ti.math.vec3:
+    # The whole CG loop in one serial kernel (small problems: no launch or argument overhead per
+    # iteration).  Starts from r, z, p set by _pcg_restart (beta0 = 0).  Same arithmetic as the
+    # fused path: p = z + beta p ; q = A' p ; alpha = r.z / p.q ; y += alpha p ; r -= alpha q ;
+    # z = P^-1 r.  Returns (iterations, r.r, 1 if p.q <= 0 else 0).
+    n = z.shape[0]
+    rz = rz0
+    beta = beta0
+    rr = target2 + 1.0
+    it = 0
+    bad = 0
+    ti.loop_config(serialize=True)
+    for _ in range(max_iter):
+        for i in range(n):
+            p[i] = z[i] + beta * p[i]
+        for h in range(n_hinges):
+            acc = 0.0
+            for sl in ti.static(range(4)):
+                acc += w[h, sl].dot(p[hinges[h, sl]])
+            s[h] = acc
+        pq = 0.0
+        for i in range(n):
+            pi = p[i]
+            qi = a * mass[i] * pi
+            for k in range(s_off[i], s_off[i + 1]):
+                qi += s_blocks[s_edge[k]] @ (pi - p[s_other[k]])
+            for k in range(b_off[i], b_off[i + 1]):
+                ent = b_ent[k]
+                qi += s[ent // 4] * w[ent // 4, ent % 4]
+            q[i] = qi
+            if inv_mass[i] > 0.0:
+                pq += pi.dot(qi)
+        if pq <= 0.0:
+            bad = 1
+            break
+        alpha = rz / pq
+        rz_new = 0.0
+        rr = 0.0
+        for i in range(n):
+            if inv_mass[i] > 0.0:
+                y[i] += alpha * p[i]
+                ri = r[i] - alpha * q[i]
+                zi = Pinv[i] @ ri
+                r[i] = ri
+                z[i] = zi
+                rz_new += ri.dot(zi)
+                rr += ri.dot(ri)
+        it += 1
+        if rr <= target2:
+            break
+        beta = rz_new / rz
+        rz = rz_new
+    return ti.math.vec3(it, rr, bad)
+
+
+@ti.kernel
+def _zero_pinned(a: vec3_array, inv_mass: scalar_array):
+    for i in range(a.shape[0]):
+        if inv_mass[i] == 0.0:
+            a[i] = ti.math.vec3(0.0)
+
+
+# --------------------------------------------------------------------------------------------
+# Kernels: sparse assembly (one triplet per nonzero of every block; duplicates are summed)
+# --------------------------------------------------------------------------------------------
+
+@ti.kernel
+def _assemble_mass(A: ti.types.sparse_matrix_builder(), mass: scalar_array, inv_mass: scalar_array, a: float):
+    # a m_i on the diagonal of free vertices, 1 for pinned (eliminated) ones: 3 triplets per vertex
+    for i in range(mass.shape[0]):
+        val = a * mass[i]
+        if inv_mass[i] == 0.0:
+            val = 1.0
+        for d in ti.static(range(3)):
+            A[3 * i + d, 3 * i + d] += val
+
+
+@ti.kernel
+def _assemble_springs(A: ti.types.sparse_matrix_builder(), edges: edge_array, blocks: mat3_array,
+                      inv_mass: scalar_array, scale: float):
+    # H_e = [[K, -K], [-K, K]] on (i, j)   (S3)/(S4); rows/cols of pinned vertices dropped.
+    # Lower triangle only (row >= col): Eigen's LL^T reads only that half.  21 triplets per edge.
+    for e in range(edges.shape[0]):
+        i = edges[e][0]
+        j = edges[e][1]
+        K = scale * blocks[e]
+        fi = inv_mass[i] > 0.0
+        fj = inv_mass[j] > 0.0
+        lo = ti.max(i, j)
+        hi = ti.min(i, j)
+        for r in ti.static(range(3)):
+            for s in ti.static(range(3)):
+                k = K[r, s]
+                if ti.static(r >= s):
+                    if fi:
+                        A[3 * i + r, 3 * i + s] += k
+                    if fj:
+                        A[3 * j + r, 3 * j + s] += k
+                if fi and fj:
+                    A[3 * lo + r, 3 * hi + s] += -k  # K is symmetric: block (lo, hi) = -K
+
+
+@ti.kernel
+def _assemble_hinges(A: ti.types.sparse_matrix_builder(), hinges: hinge_array, blocks: mat3_array2,
+                     inv_mass: scalar_array, scale: float):
+    # blocks[h, 4a+b] = d2W_h/dx_a dx_b on slots (v0, v1, w0, w1); pinned rows/cols dropped.
+    # Lower triangle only: blocks with va > vb in full, diagonal blocks (a = b) for r >= s:
+    # 6 x 9 + 4 x 6 = 78 triplets per hinge.
+    for h in range(hinges.shape[0]):
+        for ab in range(16):
+            va = hinges[h, ab // 4]
+            vb = hinges[h, ab % 4]
+            if inv_mass[va] > 0.0 and inv_mass[vb] > 0.0 and va >= vb:
+                K = scale * blocks[h, ab]
+                for r in ti.static(range(3)):
+                    for s in ti.static(range(3)):
+                        if va > vb or r >= s:
+                            A[3 * va + r, 3 * vb + s] += K[r, s]
+
+
+# --------------------------------------------------------------------------------------------
+# Operator helpers
+# --------------------------------------------------------------------------------------------
+
+def _is_springs(e) -> bool:
+    from engine.energies.springs import SpringEnergy
+    return isinstance(e, SpringEnergy)
+
+
+def _is_bending(e) -> bool:
+    from engine.energies.bending import BendingEnergy
+    return isinstance(e, BendingEnergy)
+
+
+def _hessian_plan(model: Model, x, psd: bool = True, extra=None):
+    """One callable per energy, ``add(p, q)``: q += H_e(x) p with the PSD (or exact) Hessian.
+    Energies with stored blocks (springs) compute them here, once per solve.  ``extra`` =
+    (s, x2) appends q += s H_psd(x2) p (matrix-free, through a scratch array)."""
+    plan = []
+    if extra is not None and extra[0] != 0.0:
+        s, x2 = float(extra[0]), extra[1]
+        t = model.work_vec3("linalg_extra")
+
+        def add_extra(p, q):
+            zero_vec3(t)
+            model.add_hessian_product(x2, p, t, True)
+            _axpy_inplace(q, t, s)
+        plan.append(add_extra)
+    for e in model.energies:
+        if hasattr(e, "add_block_product") and hasattr(e, "hessian_blocks"):
+            blocks = e.hessian_blocks(x, psd)
+            plan.append(lambda p, q, e=e, blocks=blocks: e.add_block_product(blocks, p, q))
+        else:
+            plan.append(lambda p, q, e=e: e.add_hessian_product(x, p, q, psd))
+    return plan
+
+
+def _scaled(extra, c: float):
+    """extra = (s, x2) of A = a M + c H(x) + s H(x2), as seen in A' = A / c; None if absent."""
+    if extra is None or float(extra[0]) == 0.0:
+        return None
+    return float(extra[0]) / c, extra[1]
+
+
+def _apply_plan(model: Model, plan, a: float, p, q) -> None:
+    """q = a M p + H p (unfiltered)."""
+    _mass_product(p, model.mass_nd, a, q)
+    for add in plan:
+        add(p, q)
+
+
+def apply_system(model: Model, x, p, q, mass_coef: float, hess_coef: float = 1.0, psd: bool = True,
+                 extra=None) -> None:
+    """q = S (mass_coef M + hess_coef H(x)) p, H the PSD Hessian (L1)-(L2); pinned rows of q are 0.
+    ``p`` should be 0 on pinned vertices (it is the filtered unknown).  ``psd=False``: exact Hessian."""
+    c = float(hess_coef)
+    if c <= 0.0:
+        raise ValueError(f"hess_coef must be > 0 (got {hess_coef!r})")
+    _apply_plan(model, _hessian_plan(model, x, psd, _scaled(extra, c)), float(mass_coef) / c, p, q)
+    _filtered_scale(q, model.inv_mass_nd, c)
+
+
+def triplet_capacity(model: Model) -> int:
+    """Exact number of triplets :class:`CholeskySolver` may write for the lower triangle: 3 per
+    vertex (mass or the identity of a pinned vertex), 21 per spring (two diagonal blocks x 6 +
+    one off-diagonal block x 9), 78 per hinge (4 diagonal blocks x 6 + 6 vertex pairs x 9).
+    An upper bound where pins drop entries; never exceeded."""
+    cap = 3 * model.n
+    for e in model.energies:
+        if _is_springs(e):
+            cap += 21 * e.m
+        elif _is_bending(e):
+            cap += 78 * e.n_hinges
+        else:
+            raise NotImplementedError(
+                f"cholesky cannot assemble the {getattr(e, 'name', type(e).__name__)} energy "
+                f"({type(e).__name__}): no per-element block layout is known; use solver='pcg'")
+    return cap
+
+
+# --------------------------------------------------------------------------------------------
+# Solvers
+# --------------------------------------------------------------------------------------------
+
+class LinearSolver:
+    """Base class: ``solve(model, x, b, y, mass_coef, hess_coef=1.0) -> LinearSolveInfo`` solves
+    (L1)-(L2) for y (overwritten; 0 on pinned vertices).  ``tol`` is the relative residual (L3)
+    to reach, ``max_iter`` the iteration limit.  Work arrays are cached per model."""
+
+    name = "linear"
+
+    def __init__(self, tol: float = 1e-8, max_iter: int = 1000):
+        tol = float(tol)
+        if not (math.isfinite(tol) and tol > 0.0):
+            raise ValueError(f"solver tolerance must be finite and > 0 (got {tol!r})")
+        max_iter = int(max_iter)
+        if max_iter < 1:
+            raise ValueError(f"solver max_iter must be >= 1 (got {max_iter})")
+        self.tol = tol
+        self.max_iter = max_iter
+        self._cache: "weakref.WeakKeyDictionary[Model, dict]" = weakref.WeakKeyDictionary()
+        self.last_info: LinearSolveInfo | None = None
+
+    def solve(self, model: Model, x, b, y, mass_coef: float, hess_coef: float = 1.0,
+              psd: bool = True, extra=None) -> LinearSolveInfo:
+        raise NotImplementedError
+
+    def _entry(self, model: Model) -> dict:
+        """Per-model cache, rebuilt if the model's energy list changed."""
+        key = tuple((id(e), getattr(e, "m", None), getattr(e, "n_hinges", None)) for e in model.energies)
+        entry = self._cache.get(model)
+        if entry is None or entry["key"] != key:
+            entry = {"key": key}
+            self._cache[model] = entry
+        return entry
+
+    def _info(self, iterations: int, residual: float, message: str = "") -> LinearSolveInfo:
+        info = LinearSolveInfo(int(iterations), float(residual), bool(residual <= self.tol), self.name,
+                               self.tol, self.max_iter, message)
+        self.last_info = info
+        return info
+
+    def __repr__(self) -> str:
+        return f"<{self.name} solver tol={self.tol:g} max_iter={self.max_iter}>"
+
+
+class PCGSolver(LinearSolver):
+    """Matrix-free block-Jacobi preconditioned CG with Baraff-Witkin filtering (module docstring).
+
+    Fast path (``fused``), used when the model's energies are at most one SpringEnergy and at
+    most one BendingEnergy and psd=True: per iteration one per-hinge kernel (s_h = w_h . p, the
+    rank-one Gauss-Newton hinge Hessian H_h = w_h w_h^T) and one per-vertex kernel that forms
+    the new direction p = z + beta p, gathers q = a' M p + sum_springs K_e (p_i - p_j) +
+    sum_hinges s_h w_h,slot and returns p.q, then the step kernel: three launches.  Otherwise
+    the generic path calls each energy's block or Hessian-vector product (4 + per-energy
+    launches)."""
+
+    name = "pcg"
+
+    def __init__(self, tol: float = 1e-8, max_iter: int = 1000, fused: bool = True, serial: bool | None = None):
+        super().__init__(tol, max_iter)
+        self.fused = bool(fused)
+        self.serial = serial  # None: serial loops below SERIAL_BELOW vertices
+
+    def _work(self, model: Model) -> dict:
+        entry = self._entry(model)
+        if "r" not in entry:
+            n = model.n
+            entry.update(r=vec3_ndarray(n), z=vec3_ndarray(n), p=vec3_ndarray(n), p2=vec3_ndarray(n),
+                         q=vec3_ndarray(n), Pinv=ti.ndarray(dtype=ti.math.mat3, shape=n))
+        return entry
+
+    def _fused_setup(self, model: Model, entry: dict, x, psd: bool):
+        """Arguments of the fused kernels, or None if the fast path does not apply."""
+        if not (self.fused and psd):
+            return None
+        springs = [e for e in model.energies if _is_springs(e)]
+        bends = [e for e in model.energies if _is_bending(e)]
+        if len(springs) + len(bends) != len(model.energies) or len(springs) > 1 or len(bends) > 1:
+            return None
+        if "dummy_off" not in entry:
+            entry["dummy_off"] = ti.ndarray(dtype=ti.i32, shape=model.n + 1)  # zeros: no incidences
+            entry["dummy_i"] = ti.ndarray(dtype=ti.i32, shape=1)
+            entry["dummy_m3"] = ti.ndarray(dtype=ti.math.mat3, shape=1)
+            entry["dummy_w"] = ti.ndarray(dtype=ti.math.vec3, shape=(1, 4))
+            entry["dummy_s"] = ti.ndarray(dtype=float, shape=1)
+            entry["dummy_h"] = ti.ndarray(dtype=ti.i32, shape=(1, 4))
+        if springs and springs[0].m:
+            sp = springs[0]
+            s_args = (sp.offsets, sp.inc_edge, sp.inc_other, sp.hessian_blocks(x, True))
+        else:
+            s_args = (entry["dummy_off"], entry["dummy_i"], entry["dummy_i"], entry["dummy_m3"])
+        hinge = None
+        if bends and bends[0].n_hinges:
+            be = bends[0]
+            key = ("hinge", id(be))
+            if key not in entry:
+                h = be.n_hinges
+                hn = ti.ndarray(dtype=ti.i32, shape=(h, 4))
+                hn.from_numpy(be.hinges_np.astype(np.int32))
+                off = ti.ndarray(dtype=ti.i32, shape=model.n + 1)
+                off.from_numpy(be.offsets_np.astype(np.int32))
+                ent = ti.ndarray(dtype=ti.i32, shape=4 * h)
+                ent.from_numpy(be.entries_np.astype(np.int32))
+                entry[key] = dict(hinges=hn, off=off, ent=ent, w=ti.ndarray(dtype=ti.math.vec3, shape=(h, 4)),
+                                  s=ti.ndarray(dtype=float, shape=h))
+            hinge = entry[key]
+            _hinge_factors(be.hessian_blocks(x, True), hinge["w"])
+            b_args = (hinge["off"], hinge["ent"], hinge["w"], hinge["s"])
+        else:
+            b_args = (entry["dummy_off"], entry["dummy_i"], entry["dummy_w"], entry["dummy_s"])
+        return s_args, b_args, hinge
+
+    def solve(self, model: Model, x, b, y, mass_coef: float, hess_coef: float = 1.0,
+              psd: bool = True, extra=None) -> LinearSolveInfo:
+        a, c = float(mass_coef), float(hess_coef)
+        if c <= 0.0 or a < 0.0:
+            raise ValueError(f"pcg needs mass_coef >= 0 and hess_coef > 0 (got {a!r}, {c!r})")
+        w = self._work(model)
+        r, z, q, Pinv = w["r"], w["z"], w["q"], w["Pinv"]
+        p, p2 = w["p"], w["p2"]
+        inv_mass, mass = model.inv_mass_nd, model.mass_nd
+        a_s = a / c  # solve A' y = b / c with A' = a' M + H
+        plan = _hessian_plan(model, x, psd, _scaled(extra, c))
+        fused = None if _scaled(extra, c) is not None else self._fused_setup(model, w, x, psd)
+        serial = self.serial if self.serial is not None else model.n < SERIAL_BELOW
+        whole = fused is not None and serial  # the whole CG loop in one serial kernel
+
+        # block-Jacobi preconditioner P = blockdiag(a' m_i I + H_ii)
+        _diag_init(mass, a_s, Pinv)
+        for e in model.energies:
+            try:
+                e.add_hessian_diagonal(x, Pinv, psd)
+            except NotImplementedError:
+                pass  # that energy is left out of the preconditioner (still correct, slower)
+        _diag_invert(Pinv, inv_mass)
+
+        zero_vec3(y)
+        zero_vec3(q)
+        rz, rr = _pcg_restart(b, q, inv_mass, c, Pinv, mass, a_s, r, z, p)
+        bb = rr  # |S b / c|^2
+        if bb == 0.0:
+            return self._info(0, 0.0)
+        target2 = (0.5 * self.tol) ** 2 * bb  # the recurrence aims at tol/2 (margin for drift)
+        it = 0
+        message = ""
+        while True:
+            beta = 0.0  # after a (re)start: p = z
+            if whole and it < self.max_iter and rr > target2:
+                s_args, b_args, hinge = fused
+                hn = hinge["hinges"] if hinge is not None else w["dummy_h"]
+                k_it, rr, bad = _pcg_whole_serial(0.0, rz, target2, self.max_iter - it, z, p, q, r, y, mass,
+                                                  inv_mass, a_s, Pinv, *s_args, hn,
+                                                  0 if hinge is None else hinge["hinges"].shape[0], *b_args)
+                it += int(k_it)
+                if bad:
+                    message = "A is not positive definite on a search direction (p.Ap <= 0)"
+            while not whole and it < self.max_iter and rr > target2:
+                if fused is not None:
+                    s_args, b_args, hinge = fused
+                    if hinge is not None:
+                        _hinge_s(hinge["w"], hinge["hinges"], z, p, beta, hinge["s"], serial)
+                    pq = _fused_direction_product(beta, z, p, p2, q, mass, inv_mass, a_s, *s_args, *b_args,
+                                                  serial)
+                    p, p2 = p2, p
+                else:
+                    _pcg_direction(beta, z, p, mass, a_s, q, serial)  # p = z + beta p ; q = a' M p
+                    for add in plan:                          # q += H p
+                        add(p, q)
+                    pq = _free_dot(p, q, inv_mass, serial)
+                if not (pq > 0.0):
+                    message = f"A is not positive definite on the search direction (p.Ap = {pq:.3e})"
+                    break
+                rz_new, rr = _pcg_step(rz / pq, p, q, inv_mass, Pinv, y, r, z, serial)
+                it += 1
+                beta = rz_new / rz
+                rz = rz_new
+            # true residual (L3); if the recurrence drifted above tol, restart from y
+            _apply_plan(model, plan, a_s, y, q)
+            res2, _ = _residual_norms(b, q, inv_mass, c)
+            residual = math.sqrt(res2 / (bb * c * c))
+            if residual <= self.tol or it >= self.max_iter or message:
+                break
+            rz, rr = _pcg_restart(b, q, inv_mass, c, Pinv, mass, a_s, r, z, p)
+        _zero_pinned(y, inv_mass)
+        return self._info(it, residual, message)
+
+
+class CholeskySolver(LinearSolver):
+    """Sparse LL^T (Eigen via ``ti.linalg.SparseSolver``), pattern analysed once per model."""
+
+    name = "cholesky"
+
+    def __init__(self, tol: float = 1e-8, max_iter: int = 1000, refinements: int = 2):
+        super().__init__(tol, max_iter)
+        self.refinements = int(refinements)
+        self.last_assembly_triplets: int | None = None
+
+    def _setup(self, model: Model) -> dict:
+        entry = self._entry(model)
+        if "builder" not in entry:
+            cap = triplet_capacity(model)
+            N = 3 * model.n
+            entry["capacity"] = cap
+            entry["builder"] = ti.linalg.SparseMatrixBuilder(N, N, max_num_triplets=cap, dtype=ti.f64)
+            entry["solver"] = ti.linalg.SparseSolver(dtype=ti.f64, solver_type="LLT")
+            entry["analyzed"] = False
+            hinges = {}
+            for e in model.energies:
+                if _is_bending(e) and e.n_hinges:
+                    h = ti.ndarray(dtype=ti.i32, shape=(e.n_hinges, 4))
+                    h.from_numpy(e.hinges_np.astype(np.int32))
+                    hinges[id(e)] = h
+            entry["hinges"] = hinges
+            entry["q"] = vec3_ndarray(model.n)
+            entry["dy"] = vec3_ndarray(model.n)
+            entry["free_dofs"] = np.repeat(model.free, 3)
+        return entry
+
+    def assemble(self, model: Model, x, mass_coef: float, hess_coef: float = 1.0, psd: bool = True,
+                 extra=None):
+        """The f64 SparseMatrix holding the LOWER TRIANGLE of the symmetric (L1)/c (plus
+        extra[0]/c H_psd(extra[1])), pinned rows/columns replaced by the identity.  Eigen's LL^T
+        reads only the lower triangle, so the upper one is not assembled (about half the
+        triplets and assembly time); do not multiply with it."""
+        entry = self._setup(model)
+        c = float(hess_coef)
+        a_s = float(mass_coef) / c
+        extra = _scaled(extra, c)
+        if extra is None:
+            B = entry["builder"]
+        else:  # the same pattern with every element block written twice
+            if "builder2" not in entry:
+                N = 3 * model.n
+                entry["builder2"] = ti.linalg.SparseMatrixBuilder(
+                    N, N, max_num_triplets=2 * entry["capacity"] - 3 * model.n, dtype=ti.f64)
+            B = entry["builder2"]
+        _assemble_mass(B, model.mass_nd, model.inv_mass_nd, a_s)
+        terms = [(1.0, x, psd)] if extra is None else [(extra[0], extra[1], True), (1.0, x, psd)]
+        for scale, xx, ps in terms:
+            for e in model.energies:
+                if _is_springs(e):
+                    if e.m:
+                        _assemble_springs(B, e.edges, e.hessian_blocks(xx, ps), model.inv_mass_nd, scale)
+                elif _is_bending(e):
+                    if e.n_hinges:
+                        _assemble_hinges(B, entry["hinges"][id(e)], e.hessian_blocks(xx, ps), model.inv_mass_nd,
+                                         scale)
+        return B.build()  # empties the builder; lower triangle of the symmetric A' only
+
+    def solve(self, model: Model, x, b, y, mass_coef: float, hess_coef: float = 1.0,
+              psd: bool = True, extra=None) -> LinearSolveInfo:
+        a, c = float(mass_coef), float(hess_coef)
+        if c <= 0.0 or a < 0.0:
+            raise ValueError(f"cholesky needs mass_coef >= 0 and hess_coef > 0 (got {a!r}, {c!r})")
+        entry = self._setup(model)
+        A = self.assemble(model, x, a, c, psd, extra)
+        S = entry["solver"]
+        if not entry["analyzed"]:
+            S.analyze_pattern(A)
+            entry["analyzed"] = True
+        S.factorize(A)
+        if not S.info():
+            zero_vec3(y)
+            return self._info(1, math.inf, "LLT factorization failed (matrix not positive definite)")
+        free = entry["free_dofs"]
+        rhs = np.asarray(b.to_numpy(), dtype=np.float64).reshape(-1) / c
+        rhs[~free] = 0.0
+        bnorm = float(np.linalg.norm(rhs))
+        if bnorm == 0.0:
+            zero_vec3(y)
+            return self._info(0, 0.0)
+        sol = np.asarray(S.solve(rhs), dtype=np.float64)
+        y.from_numpy(sol.reshape(-1, 3).astype(float_dtype()))
+        plan = _hessian_plan(model, x, psd, _scaled(extra, c))  # blocks at x were computed last
+        q = entry["q"]
+        it = 1
+        while True:
+            _apply_plan(model, plan, a / c, y, q)  # q = A' y
+            res = q.to_numpy().astype(np.float64).reshape(-1)
+            res = rhs - res
+            res[~free] = 0.0
+            residual = float(np.linalg.norm(res)) / bnorm
+            if residual <= self.tol or it > self.refinements or not np.isfinite(residual):
+                break
+            sol = sol + np.asarray(S.solve(res), dtype=np.float64)  # iterative refinement
+            y.from_numpy(sol.reshape(-1, 3).astype(float_dtype()))
+            it += 1
+        return self._info(it, residual)
+
+
+def make_solver(name: str = "pcg", tol: float = 1e-8, max_iter: int = 1000) -> LinearSolver:
+    """A linear solver by name: ``"pcg"`` (matrix-free, Taichi kernels) or ``"cholesky"``
+    (sparse direct, Eigen LL^T).  ``tol``: relative residual (L3); ``max_iter``: CG iteration
+    limit (cholesky ignores it).  ValueError (one line) for an unknown name."""
+    if isinstance(name, LinearSolver):
+        return name
+    if name == "pcg":
+        return PCGSolver(tol, max_iter)
+    if name == "cholesky":
+        return CholeskySolver(tol, max_iter)
+    raise ValueError(f"unknown linear solver {name!r}; valid names: {', '.join(SOLVERS)}")

@@ -1,0 +1,194 @@
+"""Linear solvers of engine.linalg: PCG (every code path) and sparse Cholesky against a dense
+scipy solve of the same filtered system (M/dt^2 + H, pinned rows and columns eliminated)."""
+import math
+
+import numpy as np
+import pytest
+import scipy.linalg as sla
+
+from engine import linalg, mesh
+from engine.energies.bending import BendingEnergy
+from engine.energies.springs import SpringEnergy
+from engine.linalg import SolverError, make_solver
+from engine.model import Model, vec3_ndarray
+
+
+def spring_network(seed=0):
+    """A 4x4x2 block of springs (3D), pinned at two vertices, randomly deformed (some springs
+    compressed, so the PSD clamp is active)."""
+    g = np.stack(np.meshgrid(np.arange(4), np.arange(4), np.arange(2), indexing="ij"), -1).reshape(-1, 3) * 0.1
+    n = len(g)
+    d = np.linalg.norm(g[:, None] - g[None], axis=-1)
+    i, j = np.nonzero(np.triu((d > 0) & (d < 0.15)))
+    rng = np.random.default_rng(seed)
+    model = Model.from_springs(g, np.stack([i, j], 1), k=rng.uniform(50, 150, len(i)),
+                               mass=rng.uniform(0.05, 0.15, n), pinned=[0, 5], gravity=[0, 0, -9.81])
+    x = g + 0.02 * rng.standard_normal(g.shape)
+    return model, x
+
+
+def cloth(N=6, seed=1):
+    """An N x N cloth with area springs and dihedral bending, pinned at two corners, crumpled."""
+    m3 = mesh.embed_3d(mesh.right_triangle_grid(N, N, 1.0, 1.0))
+    X = m3.vertices
+    model = Model(X, mass=mesh.lumped_masses(m3, 0.2), pinned=[0, N - 1], gravity=[0, 0, -9.81])
+    model.add_energy(SpringEnergy.from_rest(X, m3.edges, c=500.0 * mesh.edge_measure(m3)))
+    model.add_energy(BendingEnergy.from_mesh(m3, B=0.05))
+    rng = np.random.default_rng(seed)
+    x = X + 0.03 * rng.standard_normal(X.shape)
+    return model, x
+
+
+def dense_system(model, x_nd, mass_coef, hess_coef=1.0, psd=True):
+    """The filtered system on free dofs, from model.dense_hessian."""
+    H = model.dense_hessian(x_nd, psd=psd)
+    A = mass_coef * np.diag(np.repeat(model.mass, 3)) + hess_coef * H
+    free = np.repeat(model.free, 3)
+    return A[np.ix_(free, free)], free
+
+
+SOLVER_VARIANTS = {
+    "pcg": lambda tol: make_solver("pcg", tol=tol),                                     # whole-loop serial kernel
+    "pcg-parallel": lambda tol: linalg.PCGSolver(tol, 1000, serial=False),              # 3 launches / iteration
+    "pcg-generic": lambda tol: linalg.PCGSolver(tol, 1000, fused=False),                 # per-energy products
+    "cholesky": lambda tol: make_solver("cholesky", tol=tol),
+}
+
+
+@pytest.mark.parametrize("variant", list(SOLVER_VARIANTS))
+@pytest.mark.parametrize("scene", ["springs", "cloth"])
+def test_solvers_agree_with_dense_reference(scene, variant):
+    model, x = spring_network() if scene == "springs" else cloth()
+    x_nd = vec3_ndarray(model.n, x)
+    rng = np.random.default_rng(7)
+    b = rng.standard_normal((model.n, 3))
+    dt = 1e-2
+    a, c = 1.0 / dt ** 2, 1.3  # c != 1: a Rayleigh-like Hessian weight
+    A, free = dense_system(model, x_nd, a, c)
+    y_ref = sla.solve(A, b.reshape(-1)[free], assume_a="pos")
+    tol = 1e-10
+    solver = SOLVER_VARIANTS[variant](tol)
+    y = vec3_ndarray(model.n)
+    info = solver.solve(model, x_nd, vec3_ndarray(model.n, b), y, a, c)
+    yy = y.to_numpy().reshape(-1)
+    # the reported residual is the true one, below tol, and matches the dense residual
+    res_dense = np.linalg.norm(A @ yy[free] - b.reshape(-1)[free]) / np.linalg.norm(b.reshape(-1)[free])
+    assert info.converged and info.residual <= tol, info
+    assert res_dense <= tol
+    assert res_dense == pytest.approx(info.residual, rel=1e-3, abs=1e-15)
+    # forward error within cond(A) x residual
+    cond = np.linalg.cond(A)
+    err = np.linalg.norm(yy[free] - y_ref) / np.linalg.norm(y_ref)
+    assert err <= cond * max(info.residual, 1e-15) * 1.01, (err, cond, info.residual)
+    # pinned unknowns are exactly zero (filtered / eliminated)
+    assert np.all(yy[~free] == 0.0)
+    if variant.startswith("pcg"):
+        assert 1 <= info.iterations < 200
+    else:
+        assert info.iterations == 1 and info.residual < 1e-13
+
+
+@pytest.mark.parametrize("name", ["pcg", "cholesky"])
+def test_exact_hessian_option(name):
+    """psd=False uses the exact (indefinite) Hessian; with a large mass term the system is still SPD."""
+    model, x = spring_network(3)
+    x_nd = vec3_ndarray(model.n, x)
+    b = np.random.default_rng(0).standard_normal((model.n, 3))
+    a = 1e4
+    A, free = dense_system(model, x_nd, a, psd=False)
+    A_psd, _ = dense_system(model, x_nd, a, psd=True)
+    assert np.abs(A - A_psd).max() > 1.0  # some spring is compressed: the two Hessians differ
+    y = vec3_ndarray(model.n)
+    info = make_solver(name, tol=1e-11).solve(model, x_nd, vec3_ndarray(model.n, b), y, a, psd=False)
+    y_ref = np.linalg.solve(A, b.reshape(-1)[free])
+    assert info.converged
+    assert np.abs(y.to_numpy().reshape(-1)[free] - y_ref).max() <= 1e-9 * np.abs(y_ref).max()
+
+
+def test_apply_system_matches_dense_product():
+    model, x = cloth(5)
+    x_nd = vec3_ndarray(model.n, x)
+    p = np.random.default_rng(2).standard_normal((model.n, 3))
+    p[model.pinned] = 0.0
+    q = vec3_ndarray(model.n)
+    linalg.apply_system(model, x_nd, vec3_ndarray(model.n, p), q, 50.0, 2.0)
+    A, free = dense_system(model, x_nd, 50.0, 2.0)
+    qq = q.to_numpy().reshape(-1)
+    assert np.abs(qq[free] - A @ p.reshape(-1)[free]).max() <= 1e-12 * np.abs(qq).max()
+    assert np.all(qq[~free] == 0.0)
+
+
+def test_nonconvergent_pcg_is_reported():
+    model, x = cloth()
+    x_nd = vec3_ndarray(model.n, x)
+    b = vec3_ndarray(model.n, np.ones((model.n, 3)))
+    solver = make_solver("pcg", tol=1e-10, max_iter=2)
+    info = solver.solve(model, x_nd, b, vec3_ndarray(model.n), 1e2)
+    assert not info.converged and info.iterations == 2 and info.residual > 1e-10
+    with pytest.raises(SolverError) as exc:
+        info.check()
+    msg = str(exc.value)
+    assert "\n" not in msg
+    for word in ("pcg", "tol 1.0e-10", f"{info.residual:.3e}", "2 iterations"):
+        assert word in msg, msg
+
+
+def test_cholesky_reports_indefinite_matrix():
+    """No mass term and the exact Hessian of a crumpled network: not positive definite."""
+    model, x = spring_network(3)
+    x_nd = vec3_ndarray(model.n, x)
+    b = vec3_ndarray(model.n, np.ones((model.n, 3)))
+    info = make_solver("cholesky").solve(model, x_nd, b, vec3_ndarray(model.n), 0.0, psd=False)
+    assert not info.converged and "factorization failed" in info.message
+    with pytest.raises(SolverError, match="cholesky"):
+        info.check()
+
+
+def test_cholesky_refactorizes_with_cached_pattern():
+    """The pattern is analysed once per model; new values are factorised on every solve."""
+    model, x = cloth(5)
+    solver = make_solver("cholesky", tol=1e-12)
+    b = np.random.default_rng(4).standard_normal((model.n, 3))
+    for k, scale in enumerate([0.0, 0.05, 0.1]):
+        xk = model.X + scale * np.random.default_rng(k).standard_normal(x.shape)
+        x_nd = vec3_ndarray(model.n, xk)
+        y = vec3_ndarray(model.n)
+        info = solver.solve(model, x_nd, vec3_ndarray(model.n, b), y, 1e3)
+        A, free = dense_system(model, x_nd, 1e3)
+        assert info.converged
+        assert np.abs(y.to_numpy().reshape(-1)[free] - np.linalg.solve(A, b.reshape(-1)[free])).max() < 1e-10
+    entry = solver._cache[model]
+    assert entry["analyzed"] and entry["capacity"] == linalg.triplet_capacity(model)
+
+
+def test_triplet_capacity_is_exact_formula():
+    model, _ = cloth(5)
+    springs, bending = model.energies
+    assert linalg.triplet_capacity(model) == 3 * model.n + 21 * springs.m + 78 * bending.n_hinges
+
+
+def test_zero_rhs_and_unknown_solver():
+    model, x = spring_network()
+    y = vec3_ndarray(model.n, np.ones((model.n, 3)))
+    info = make_solver("pcg").solve(model, vec3_ndarray(model.n, x), vec3_ndarray(model.n), y, 1.0)
+    assert info.converged and info.iterations == 0 and np.all(y.to_numpy() == 0.0)
+    with pytest.raises(ValueError, match="pcg, cholesky"):
+        make_solver("lu")
+    assert math.isfinite(info.residual)
+
+
+@pytest.mark.parametrize("name", ["pcg", "cholesky"])
+def test_extra_hessian_term(name):
+    """A = a M + c H(x) + s H(x2) (backward Euler's stiffness damping beta/dt H(x_n) during Newton)."""
+    model, x = cloth(5)
+    x2 = model.X + 0.02 * np.random.default_rng(9).standard_normal(x.shape)
+    x_nd, x2_nd = vec3_ndarray(model.n, x), vec3_ndarray(model.n, x2)
+    b = np.random.default_rng(1).standard_normal((model.n, 3))
+    a, c, s = 400.0, 1.0, 0.7
+    A, free = dense_system(model, x_nd, a, c)
+    A = A + s * model.dense_hessian(x2_nd, psd=True)[np.ix_(free, free)]
+    y = vec3_ndarray(model.n)
+    info = make_solver(name, tol=1e-11).solve(model, x_nd, vec3_ndarray(model.n, b), y, a, c, extra=(s, x2_nd))
+    y_ref = np.linalg.solve(A, b.reshape(-1)[free])
+    assert info.converged
+    assert np.abs(y.to_numpy().reshape(-1)[free] - y_ref).max() <= 1e-8 * np.abs(y_ref).max()
