@@ -67,7 +67,8 @@ def test_registry_and_make_integrator():
     assert isinstance(be, BackwardEuler) and be.implicit and be.name == "backward-euler"
     assert be.solver.name == "pcg" and be.newton_iterations == 1
     custom = make_integrator("backward-euler", solver="cholesky", tol=1e-6, newton_iterations=3, rayleigh_alpha=0.1)
-    assert (custom.solver.name, custom.tol, custom.newton_iterations, custom.rayleigh_alpha) == ("cholesky", 1e-6, 3, 0.1)
+    assert (custom.solver.name, custom.tol, custom.newton_iterations, custom.rayleigh_alpha) == \
+        ("cholesky", 1e-6, 3, 0.1)
     assert make_integrator("symplectic-euler", solver="pcg", tol=1e-3) is integrators.get("symplectic-euler")
     with pytest.raises(ValueError, match="backward-euler"):
         make_integrator("crank-nicolson")

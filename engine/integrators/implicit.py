@@ -13,21 +13,26 @@ the step).  (BE) is the stationarity condition of the *incremental potential*
 (grad Phi = 0  <=>  (BE) with v+ = (x - x_n)/dt), so a step minimises Phi.  At x = x_n,
 Phi = the kinetic energy 1/2 |v_n|_M^2.
 
-Newton on (IP) from x = x_n, with the PSD Hessian (springs (S4), bending Gauss-Newton):
+Newton on (IP) from x = x_n, with the PSD Hessian H (springs (S4), bending Gauss-Newton):
 
-    A dx = -grad Phi(x),    A = (1/dt^2 + alpha/dt) M + (1 + beta/dt) H(x)               (N1)
+    A dx = -grad Phi(x),    A = (1/dt^2 + alpha/dt) M + H(x) + (beta/dt) H_n            (N1)
 
-(exact at the first iteration; afterwards the damping part uses H(x) for H_n, a
-quasi-Newton matrix that is still SPD, so dx is a descent direction).  One iteration from
-x_n is exactly Baraff & Witkin's linearised step, their eq. (16)
+(at the first iteration x = x_n, so A = (1/dt^2 + alpha/dt) M + (1 + beta/dt) H(x_n)).  One
+iteration from x_n is exactly Baraff & Witkin's linearised step, their eq. (16)
 
     (M - dt^2 df/dx) dv = dt (f_n + dt df/dx v_n),   dx = dt (v_n + dv)
 
-(substitute dv = dx/dt - v_n into (N1)).  More iterations converge to the true backward
-Euler step.  With ``line_search`` each Newton step is backtracked (halving) until Armijo's
-condition  Phi(x + s dx) <= Phi(x) + 1e-4 s grad Phi . dx  holds, so Phi decreases
+(substitute dv = dx/dt - v_n into (N1) with df/dx = -H).  More iterations converge to the true
+backward Euler step.  The PSD projection makes later iterations converge only linearly where
+springs are compressed or hinges bent, so once |grad Phi| < 1e-2 |grad Phi(x_n)| the exact
+Hessian is tried (``exact_near_solution``); where it is indefinite (failed factorisation,
+p.Ap <= 0 in CG, or not a descent direction) or needs a shortened step, the PSD one is used
+again (the exact one is retried every 5 iterations).  With ``line_search`` each Newton step
+is backtracked (halving) until  Phi(x + s dx) < Phi(x)  and Armijo's condition
+Phi(x + s dx) <= Phi(x) + 1e-4 s grad Phi . dx  hold, so Phi decreases strictly
 monotonically; the values are kept in ``last_objectives``.  If no step length down to 2^-30
-decreases Phi (only at round-off level, next to the minimum) the iteration stops there.
+decreases Phi measurably (round-off level, next to the minimum) the iteration stops there
+(``last_info.line_search_failed``).
 
 Newton stops when |grad Phi(x)| <= newton_tol |grad Phi(x_n)|.  Linear solves go through
 :mod:`engine.linalg` ("pcg" or "cholesky", relative tolerance ``tol``); a linear solve that
@@ -162,6 +167,7 @@ class BackwardEuler:
       rayleigh_alpha    mass-proportional damping alpha [1/s]   (D = alpha M + beta H)
       rayleigh_beta     stiffness-proportional damping beta [s]
       max_iter          CG iteration limit of each linear solve (pcg)
+      exact_near_solution  with newton_iterations > 1, try the exact Hessian near the solution
 
     ``step(model, state, dt, n_steps=1)``; ``advance(model, state, dt)`` is one step.
     After a step: ``last_info`` (:class:`StepInfo`), ``last_objectives`` (Phi values);
