@@ -1,0 +1,244 @@
+"""Lesson springs (every experiment, key figures asserted) and the fused spring kernel
+(engine/integrators/fused.py) against the step-by-step explicit integrators.
+
+The bad-input cases of the issue (zero/negative rest length, coincident endpoints, k <= 0,
+edge or pin index out of range) are covered by tests/test_springs_engine.py.
+"""
+import math
+
+import numpy as np
+import pytest
+
+from engine import diagnostics, errors, integrators
+from engine.energies.bending import BendingEnergy
+from engine.integrators import explicit
+from engine.integrators.fused import run_fused
+from engine.model import Model
+from lessons._framework import validate_config
+from lessons.springs import LESSON, SpringsConfig
+from tests.helpers import assert_all_passed, run_stage
+
+METHODS = ["forward-euler", "symplectic-euler", "velocity-verlet"]
+
+
+# ------------------------------------------------------------------------------------------
+# the fused kernel
+# ------------------------------------------------------------------------------------------
+
+def _network(gravity=None, pinned=None, seed=0):
+    """A small 3D network (two tets sharing a face) displaced and moving."""
+    X = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 1]]) * 0.2
+    E = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3], [4, 1], [4, 2], [4, 3]])
+    rng = np.random.default_rng(seed)
+    model = Model.from_springs(X, E, k=rng.uniform(50, 150, len(E)), mass=rng.uniform(0.05, 0.15, len(X)),
+                               pinned=pinned, gravity=gravity)
+    x0 = X + 0.02 * rng.standard_normal(X.shape)
+    v0 = 0.5 * rng.standard_normal(X.shape)
+    return model, x0, v0
+
+
+CASES = {"free": dict(), "gravity_and_pins": dict(gravity=(0.0, -9.81, 0.0), pinned=[0, 3])}
+
+
+@pytest.mark.parametrize("case", list(CASES))
+@pytest.mark.parametrize("method", METHODS)
+def test_one_fused_step_equals_one_explicit_step(method, case):
+    model, x0, v0 = _network(**CASES[case])
+    dt = 0.2 * explicit.stable_dt_estimate(model)
+    a, b = model.make_state(x0, v0), model.make_state(x0, v0)
+    K, W = run_fused(model, a, dt, 1, method)
+    integrators.get(method).step(model, b, dt, 1)
+    xa, va, ta = a.numpy()
+    xb, vb, tb = b.numpy()
+    np.testing.assert_allclose(xa, xb, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(va, vb, rtol=0, atol=1e-14)
+    assert ta == tb == pytest.approx(dt)
+    assert K.shape == W.shape == (1,)
+    assert K[0] == pytest.approx(diagnostics.kinetic_energy(model, b), rel=1e-13)
+    assert W[0] == pytest.approx(model.potential_energy(b.x), rel=1e-13, abs=1e-15)
+    assert np.all(xa[model.pinned] == x0[model.pinned]) and np.all(va[model.pinned] == 0)
+
+
+@pytest.mark.parametrize("case", list(CASES))
+@pytest.mark.parametrize("method", METHODS)
+def test_fused_energies_of_every_step_match_the_engine(method, case):
+    model, x0, v0 = _network(**CASES[case], seed=1)
+    dt = 0.2 * explicit.stable_dt_estimate(model)
+    a, b = model.make_state(x0, v0), model.make_state(x0, v0)
+    K, W = run_fused(model, a, dt, 50, method)
+    integ = integrators.get(method)
+    integ.begin(model, b)
+    for s in range(50):
+        integ.advance(model, b, dt)
+        assert K[s] == pytest.approx(diagnostics.kinetic_energy(model, b), rel=1e-12)
+        assert W[s] == pytest.approx(model.potential_energy(b.x), rel=1e-12, abs=1e-14)
+    np.testing.assert_allclose(a.numpy().x, b.numpy().x, rtol=0, atol=1e-13)
+    assert a.t == pytest.approx(b.t, rel=1e-14)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_chunked_fused_runs_equal_one_long_run(method):
+    model, x0, v0 = _network(**CASES["gravity_and_pins"])
+    dt = 0.2 * explicit.stable_dt_estimate(model)
+    a, b = model.make_state(x0, v0), model.make_state(x0, v0)
+    K1, W1 = run_fused(model, a, dt, 300, method)
+    parts = [run_fused(model, b, dt, 100, method) for _ in range(3)]
+    np.testing.assert_array_equal(a.numpy().x, b.numpy().x)
+    np.testing.assert_array_equal(K1, np.concatenate([p[0] for p in parts]))
+    np.testing.assert_array_equal(W1, np.concatenate([p[1] for p in parts]))
+
+
+def test_fused_blow_up_is_detected_at_the_same_step_as_the_explicit_runner():
+    model, x0, v0 = _network()
+    dt = 1.5 * explicit.stable_dt_estimate(model, method="power")  # above the CFL limit
+    a, b = model.make_state(x0, v0), model.make_state(x0, v0)
+    E0 = diagnostics.total_energy(model, a)
+    with pytest.raises(explicit.BlowUpError) as fused_info:
+        run_fused(model, a, dt, 10_000, "symplectic-euler", energy_bound=100 * E0, step_offset=7)
+    with pytest.raises(explicit.BlowUpError) as ref_info:
+        explicit.run(model, b, dt, 10_000, "symplectic-euler", energy_bound=100 * E0)
+    exc = fused_info.value
+    assert isinstance(exc, errors.BlowUpError)
+    assert exc.step == ref_info.value.step + 7
+    assert 0 < ref_info.value.step < 10_000
+    assert exc.energy > 100 * E0 and exc.energy == pytest.approx(ref_info.value.energy, rel=1e-9)
+    assert exc.kinetic.size == exc.potential.size == ref_info.value.step + 1
+    assert exc.kinetic[-1] + exc.potential[-1] > 100 * E0 >= np.max((exc.kinetic + exc.potential)[:-1])
+    assert "symplectic-euler blew up at step" in str(exc) and "CFL" in str(exc) and "\n" not in str(exc)
+    assert a.t == pytest.approx(b.t)
+
+
+def test_fused_forward_euler_grows_and_non_finite_energy_is_caught_without_a_bound():
+    model, x0, v0 = _network()
+    st = model.make_state(x0, v0)
+    E0 = diagnostics.total_energy(model, st)
+    K, W = run_fused(model, st, 0.3 * explicit.stable_dt_estimate(model), 500, "forward-euler")
+    assert (K + W)[-1] > 10 * E0
+    st = model.make_state(x0, v0)
+    with pytest.raises(errors.BlowUpError) as info:
+        run_fused(model, st, 100 * explicit.stable_dt_estimate(model), 10_000, "symplectic-euler")
+    assert not math.isfinite(info.value.energy) and info.value.step < 10_000
+
+
+def test_fused_bad_input():
+    model, x0, v0 = _network()
+    st = model.make_state(x0, v0)
+    with pytest.raises(ValueError, match="unknown method 'leapfrog'"):
+        run_fused(model, st, 1e-3, 10, "leapfrog")
+    for dt in (0.0, -1e-3, math.nan, math.inf):
+        with pytest.raises(ValueError, match="dt must be > 0"):
+            run_fused(model, st, dt, 10, "symplectic-euler")
+    with pytest.raises(ValueError, match="n_steps"):
+        run_fused(model, st, 1e-3, -1, "symplectic-euler")
+    with pytest.raises(ValueError, match="energy_bound"):
+        run_fused(model, st, 1e-3, 10, "symplectic-euler", energy_bound=math.nan)
+    assert run_fused(model, st, 1e-3, 0, "symplectic-euler")[0].size == 0
+    # not a spring-only model
+    X = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0.1]])
+    cloth = Model.from_springs(X, np.array([[0, 1], [1, 2], [2, 0], [1, 3], [3, 2]]), k=1.0)
+    cloth.add_energy(BendingEnergy(X, np.array([[1, 2, 0, 3]]), 1e-3))
+    with pytest.raises(ValueError, match="spring-only model"):
+        run_fused(cloth, cloth.make_state(), 1e-3, 10)
+    with pytest.raises(ValueError, match="spring-only model"):
+        run_fused(Model(X), Model(X).make_state(), 1e-3, 10)
+
+
+# ------------------------------------------------------------------------------------------
+# the lesson
+# ------------------------------------------------------------------------------------------
+
+class _Stages(dict):
+    """Each stage runs once, when a test first asks for it."""
+
+    def __missing__(self, index):
+        self[index] = run_stage(LESSON, index)
+        return self[index]
+
+
+@pytest.fixture(scope="module")
+def stages():
+    return _Stages()
+
+
+def test_lesson_is_registered():
+    from lessons import registry
+    assert registry.get("springs") is LESSON and LESSON.order == 2
+
+
+def test_config_ranges_are_checked():
+    from engine.errors import ParameterError
+    validate_config(SpringsConfig())
+    for bad in (dict(dt_fraction=0.0), dict(steps=10), dict(chain_nodes=2), dict(k=-1.0), dict(E=math.nan)):
+        with pytest.raises(ParameterError):
+            validate_config(SpringsConfig(**bad))
+
+
+def test_stage1_one_spring(stages):
+    s = stages[1]
+    assert_all_passed(s)
+    assert s["force equals -dW/dx_i by central differences (rel. error, eps = 1e-6)"].measured < 1e-7
+    assert s["directional derivative g'(0) = grad W . q for random q (rel. error)"].measured < 1e-7
+    assert s["no force at the rest length (max |f| / k)"].measured < 1e-14
+    assert s["force is parallel to the spring: |f x d| / (|f||d|) = sin(angle)"].measured < 1e-14
+    assert s["energy unchanged by a rigid rotation + translation (rel. change)"].measured < 1e-12
+    assert s["engine force equals the closed form -k (l/L - 1)(x_i - x_j)/l (rel. error)"].measured < 1e-13
+
+
+def test_stage2_conservation(stages):
+    s = stages[2]
+    assert_all_passed(s)
+    for method in METHODS:
+        assert s[f"fused kernel = engine's {method} step by step (100 steps, max rel. diff.)"].measured < 1e-12
+    for net, what in (("chain", "peak kinetic energy"), ("frame", "initial energy")):
+        for method, ratio in (("symplectic-euler", 2.0), ("velocity-verlet", 4.0)):
+            drift = s[f"{net}, {method}: no drift over 100000 steps (|mean E last tenth - first tenth| / {what})"]
+            assert drift.measured < 0.01
+            r = s[f"{net}, {method}: energy wobble ratio at dt vs dt/2 = 2^order"]
+            assert r.theory == ratio and abs(r.measured / ratio - 1) < 0.05
+    for method in ("symplectic-euler", "velocity-verlet"):
+        assert s[f"frame, {method}: linear momentum conserved (max |P - P0| / max sum m|v|)"].measured < 1e-12
+        assert s[f"frame, {method}: angular momentum conserved (max |J - J0| / max sum m|x||v|)"].measured < 1e-12
+    fe = s["chain, forward Euler: energy grows by one peak kinetic energy within 100000 steps (step detected)"]
+    assert fe.measured < 100000
+    growth = s["frame, forward Euler: energy growth over 200 steps = sum_k E_k (1 + w_k^2 dt^2)^n / E0"]
+    assert growth.measured > 10 and abs(growth.measured / growth.theory - 1) < 1e-3
+    step = s["frame, forward Euler: blow-up (E > 10 E0) detected at the step modal theory predicts"]
+    assert abs(step.measured - step.theory) <= 1
+
+
+def test_stage3_variational_derivative(stages):
+    s = stages[3]
+    assert_all_passed(s)
+    for kind in ("graded", "random"):
+        e = s[f"{kind} grid: -grad W = nodal length x FD stencil of d/dp(E(x'-1)) (max rel. diff.)"]
+        assert e.measured < 1e-13
+    for kind in ("uniform", "graded"):
+        o = s[f"{kind} grid: force density -> d/dp(E(x'-1)), order of the rms error"]
+        assert 1.9 <= o.measured <= 2.1
+    assert 1.9 <= s["graded grid: order of the max error"].measured <= 2.1
+    o = s["random grid: force density -> d/dp(E(x'-1)), order of the rms error"]
+    assert o.theory == 1.0 and 0.85 <= o.measured <= 1.15
+
+
+def test_stage4_stiffness_from_the_speed_of_sound(stages):
+    s = stages[4]
+    assert_all_passed(s)
+    c = math.sqrt(100.0 / 1.0)
+    for kind in ("uniform", "alternating", "graded"):
+        e = next(v for k, v in s.items() if k.startswith(f"k_j = rho c^2 ({kind} lengths"))
+        assert e.theory == pytest.approx(c) and abs(e.measured / c - 1) < 0.01
+    assert s["k_j = rho c^2: spread of the three speeds (max - min) / c"].measured < 0.01
+    alt = s["one Hooke constant kappa (alternating lengths): speed = sqrt(kappa L_mean / rho)"]
+    assert alt.theory == pytest.approx(c * math.sqrt(1.5), rel=1e-3)  # L_mean = 1.5 h
+    assert abs(alt.measured / alt.theory - 1) < 0.01
+    assert s["one Hooke constant: the two patterns' speeds differ by more than 1% (rel. diff.)"].measured > 0.01
+
+
+def test_stage5_hanging_rod(stages):
+    s = stages[5]
+    assert_all_passed(s)
+    for kind in ("uniform", "graded"):
+        assert s[f"{kind} grid: static solver converged (net-force residual <= tol)"].measured <= 1e-10
+        assert s[f"{kind} grid: nodal displacement = (rho g/E)(L p - p^2/2) (max rel. error)"].measured < 1e-9
+        r = s[f"{kind} grid: pin reaction carries the whole weight rho g L"]
+        assert r.theory == pytest.approx(9.81) and r.measured == pytest.approx(9.81, rel=1e-8)
