@@ -1,7 +1,6 @@
 """Tests of engine/mesh.py: counts, conservation of area/volume/mass, hinge convention,
 conformity, incidence, validation messages, and the geometric generators."""
 import math
-import time
 
 import numpy as np
 import pytest
@@ -415,13 +414,13 @@ def test_mesh_arrays_are_read_only_and_int64():
             a[0] = 0
 
 
-def test_large_grid_is_fast():
-    t0 = time.perf_counter()
+def test_large_grid_topology_is_complete():
+    """The 256x256 benchmark grids build (speed is measured in bench/, not asserted here)."""
     for p in PATTERNS:
         g = M.right_triangle_grid(256, 256, 1.0, 1.0, p)
-        g.incidence, g.hinge_heights, g.edge_measure, M.lumped_masses(g, 1.0)
-    elapsed = (time.perf_counter() - t0) / 3
-    assert elapsed < 1.0, f"{elapsed:.3f} s per 256x256 grid with topology"
+        g.incidence, g.hinge_heights
+        assert M.lumped_masses(g, 1.0).sum() == pytest.approx(1.0, rel=1e-12)
+        assert g.edge_measure.sum() == pytest.approx(1.0, rel=1e-12)
 
 
 # ---------------------------------------------------------------- validation --------
