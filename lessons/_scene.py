@@ -12,6 +12,7 @@ import numpy as np
 
 from engine import diagnostics
 from engine.integrators import get as get_integrator
+from engine import errors
 from engine.integrators.explicit import BlowUpError, _blowup_message, stable_dt_estimate
 
 
@@ -83,6 +84,39 @@ def simulate(ctx, name: str, model, state, dt: float, n_steps: int, integrator: 
                 flushed = len(kin)
                 draw(s)
     return np.asarray(steps), np.asarray(kin), np.asarray(pot)
+
+
+def run_chunked(ctx, name: str, dt: float, n_steps: int, every: int, advance, draw):
+    """The loop shared by runners that advance many steps per kernel launch.
+
+    ``advance(chunk, done)`` runs ``chunk`` steps and returns per-step (kinetic, potential);
+    on a blow-up it raises an engine BlowUpError carrying ``kinetic``/``potential`` up to the
+    bad step. ``draw(step)`` logs/observes the state after ``step`` steps (and at 0). The
+    energies of every step go to the recorder; a blow-up is recorded up to its step, marked,
+    its energies extended to the whole run, and re-raised. Returns (kinetic, potential).
+    """
+    rec = ctx.rec
+    kin, pot = [], []
+    draw(0)
+    done = 0
+    with ctx.timed(name, n_steps):
+        while done < n_steps:
+            chunk = min(every, n_steps - done)
+            try:
+                K, W = advance(chunk, done)
+            except errors.BlowUpError as exc:  # any engine blow-up: keep energies up to the bad step, mark, re-raise
+                rec.energies(exc.kinetic, exc.potential, dt, first_step=done)
+                exc.kinetic = np.concatenate(kin + [exc.kinetic])
+                exc.potential = np.concatenate(pot + [exc.potential])
+                draw(exc.step + 1)
+                rec.mark(str(exc), level="ERROR")
+                raise
+            kin.append(K)
+            pot.append(W)
+            rec.energies(K, W, dt, first_step=done)
+            done += chunk
+            draw(done)
+    return np.concatenate(kin), np.concatenate(pot)
 
 
 def edge_strain(x: np.ndarray, edges: np.ndarray, rest_lengths: np.ndarray) -> np.ndarray:

@@ -15,6 +15,7 @@ from engine.errors import BlowUpError, ParameterError
 from engine.rod import Rod
 
 from ._framework import Experiment, Lesson, Stage, param
+from ._scene import run_chunked
 
 
 @dataclass
@@ -65,31 +66,14 @@ def simulate(ctx, name: str, rod: Rod, state, dt: float, n_steps: int, method: s
             rec.set_time(step, step * dt)
             rec.rod(x, rod.p, node_strain, gain=gain)
 
-    kin, pot = [], []
-    log(0)
-    if observe:
-        observe(0, 0.0, state.displacement(rod))
-    done = 0
-    with ctx.timed(name, n_steps):
-        while done < n_steps:
-            chunk = min(every, n_steps - done)
-            try:
-                K, W = rod.run(state, dt, chunk, method, energy_bound, step_offset=done)
-            except BlowUpError as exc:  # keep the energies up to the bad step, mark it, re-raise
-                rec.energies(exc.kinetic, exc.potential, dt, first_step=done)
-                exc.kinetic = np.concatenate(kin + [exc.kinetic])
-                exc.potential = np.concatenate(pot + [exc.potential])
-                log(exc.step + 1)
-                rec.mark(str(exc), level="ERROR")
-                raise
-            kin.append(K)
-            pot.append(W)
-            rec.energies(K, W, dt, first_step=done)
-            done += chunk
-            log(done)
-            if observe:
-                observe(done, done * dt, state.displacement(rod))
-    return np.concatenate(kin), np.concatenate(pot)
+    def draw(step):
+        log(step)
+        if observe:
+            observe(step, step * dt, state.displacement(rod))
+
+    return run_chunked(ctx, name, dt, n_steps, every, draw=draw,
+                       advance=lambda chunk, done: rod.run(state, dt, chunk, method, energy_bound,
+                                                           step_offset=done))
 
 
 def uniform_rod(cfg, pinned=()) -> Rod:

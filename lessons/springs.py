@@ -27,7 +27,7 @@ from engine.rod import Rod
 from engine.statics import solve_static
 
 from ._framework import Experiment, Lesson, Stage, param
-from ._scene import edge_strain
+from ._scene import edge_strain, run_chunked
 
 G = 9.81
 
@@ -82,27 +82,9 @@ def simulate_fused(ctx, name: str, model: Model, state, dt: float, n_steps: int,
         if observe is not None:
             observe(step, state)
 
-    kin, pot = [], []
-    draw(0)
-    done = 0
-    with ctx.timed(name, n_steps):
-        while done < n_steps:
-            chunk = min(every, n_steps - done)
-            try:
-                K, W = run_fused(model, state, dt, chunk, method, energy_bound, step_offset=done)
-            except BlowUpError as exc:
-                rec.energies(exc.kinetic, exc.potential, dt, first_step=done)
-                exc.kinetic = np.concatenate(kin + [exc.kinetic])
-                exc.potential = np.concatenate(pot + [exc.potential])
-                draw(exc.step + 1)
-                rec.mark(str(exc), level="ERROR")
-                raise
-            kin.append(K)
-            pot.append(W)
-            rec.energies(K, W, dt, first_step=done)
-            done += chunk
-            draw(done)
-    return np.concatenate(kin), np.concatenate(pot)
+    return run_chunked(ctx, name, dt, n_steps, every, draw=draw,
+                       advance=lambda chunk, done: run_fused(model, state, dt, chunk, method, energy_bound,
+                                                             step_offset=done))
 
 
 def random_rotation(rng) -> np.ndarray:
