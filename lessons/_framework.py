@@ -26,10 +26,13 @@ COMPARISONS = ("rel", "abs", "<=", ">=")
 
 # --------------------------------------------------------------------------- config
 
-def param(default, help: str, unit: str = "", *, gt=None, ge=None, lt=None, le=None, choices=None):
-    """A config field with its help text, unit and valid range (checked before any kernel)."""
+def param(default, help: str, unit: str = "", *, gt=None, ge=None, lt=None, le=None, choices=None,
+          optional: bool = False):
+    """A config field with its help text, unit and valid range (checked before any kernel).
+    ``optional``: None is allowed and means "not given" (the run's own choice)."""
     return field(default=default, metadata=dict(help=help, unit=unit, gt=gt, ge=ge, lt=lt, le=le,
-                                                choices=tuple(choices) if choices else None))
+                                                choices=tuple(choices) if choices else None,
+                                                optional=optional))
 
 
 def _field_type(f: dataclasses.Field) -> type:
@@ -52,7 +55,7 @@ def validate_config(cfg) -> None:
     """Raise ParameterError naming the first field outside its range (then cfg.validate())."""
     for f in dataclasses.fields(cfg):
         meta, value = f.metadata, getattr(cfg, f.name)
-        if not meta:
+        if not meta or (value is None and meta.get("optional")):
             continue
         flag = "--" + f.name.replace("_", "-")
         kind = _field_type(f)
@@ -70,6 +73,49 @@ def validate_config(cfg) -> None:
     extra = getattr(cfg, "validate", None)
     if callable(extra):
         extra()
+
+
+# -------------------------------------------------------------------------- stepping
+
+INTEGRATOR_CHOICES = ("default", "forward-euler", "symplectic-euler", "velocity-verlet", "backward-euler")
+SOLVER_CHOICES = ("default", "pcg", "cholesky")
+
+
+@dataclass
+class Stepping:
+    """How every lesson's scene runs are stepped in time (``--integrator/--solver/--tol/
+    --newton-iterations``, shared by all lessons).
+
+    "default" keeps each run's own choice. Runs whose claim is about one particular
+    integrator (a CFL limit, energy conservation of a symplectic method, the damping of
+    backward Euler) are *fixed* and ignore the choice; the stage says so. With an explicit
+    integrator a scene whose dt exceeds 0.9x the stable estimate is sub-stepped.
+    """
+
+    integrator: str = param("default", "time integrator for the lessons' scene runs ('default': each run's own "
+                            "choice; runs that test one integrator keep it)", choices=INTEGRATOR_CHOICES)
+    solver: str = param("default", "linear solver of backward Euler ('default': the run's choice, usually pcg)",
+                        choices=SOLVER_CHOICES)
+    tol: float = param(None, "relative residual tolerance of backward Euler's linear solves (default: the "
+                       "run's choice, usually 1e-8)", gt=0.0, lt=1.0, optional=True)
+    newton_iterations: int = param(None, "Newton iterations per backward-Euler step (1 = Baraff-Witkin "
+                                   "linearised step; default: the run's choice)", ge=1, le=100, optional=True)
+
+    @property
+    def overridden(self) -> bool:
+        return self.integrator != "default"
+
+    def describe(self) -> str:
+        if not self.overridden and self.solver == "default" and self.tol is None and self.newton_iterations is None:
+            return "each run's own integrator"
+        parts = [self.integrator if self.overridden else "each run's own integrator"]
+        if self.solver != "default":
+            parts.append(f"solver {self.solver}")
+        if self.tol is not None:
+            parts.append(f"tol {self.tol:g}")
+        if self.newton_iterations is not None:
+            parts.append(f"{self.newton_iterations} Newton iteration(s)")
+        return ", ".join(parts)
 
 
 # ----------------------------------------------------------------------- experiments
@@ -183,9 +229,57 @@ class Lesson:
 class StageContext:
     """What a stage sees: its lesson, config, recorder, and progress reporting."""
 
-    def __init__(self, lesson: Lesson, cfg, rec, index: int, stream=sys.stderr, quiet: bool = False):
+    def __init__(self, lesson: Lesson, cfg, rec, index: int, stream=sys.stderr, quiet: bool = False,
+                 stepping: Stepping | None = None):
         self.lesson, self.cfg, self.rec, self.index = lesson, cfg, rec, index
         self._stream, self._quiet = stream, quiet
+        self.stepping = stepping or Stepping()
+        self.integrators_used: list[str] = []  # "run: integrator" for every run of this stage
+
+    def integrator_name(self, default: str, fixed: bool = False) -> str:
+        """The integrator a run uses: ``default`` unless ``--integrator`` overrides it (never
+        when ``fixed``: the run is about that integrator)."""
+        return default if fixed or not self.stepping.overridden else self.stepping.integrator
+
+    def integrator(self, default="symplectic-euler", fixed: bool = False, run: str = "", **options):
+        """An engine integrator for a run whose own choice is ``default`` (with backward-Euler
+        ``options`` such as solver="cholesky"), after applying ``--integrator/--solver/--tol/
+        --newton-iterations``; ``fixed`` runs keep ``default`` and its options. The choice is
+        noted (``integrators_used``) and shown after the stage."""
+        from engine.integrators import make_integrator
+        if not isinstance(default, str):  # an integrator object: keep it unless options change it
+            obj = default
+            st = self.stepping
+            be_options = st.solver != "default" or st.tol is not None or st.newton_iterations is not None
+            if fixed or not (st.overridden or (obj.name == "backward-euler" and be_options)):
+                self.note_integrator(run, obj, fixed)
+                return obj
+            if obj.name == "backward-euler":
+                options = dict(solver=obj.solver.name, tol=obj.tol, newton_iterations=obj.newton_iterations,
+                               line_search=obj.line_search, rayleigh_alpha=obj.rayleigh_alpha,
+                               rayleigh_beta=obj.rayleigh_beta)
+            default = obj.name
+        name = self.integrator_name(default, fixed)
+        kw = dict(options) if name == default else {}
+        if not fixed and name == "backward-euler":
+            st = self.stepping
+            if st.solver != "default":
+                kw["solver"] = st.solver
+            if st.tol is not None:
+                kw["tol"] = st.tol
+            if st.newton_iterations is not None:
+                kw["newton_iterations"] = st.newton_iterations
+        integ = make_integrator(name, **kw)
+        self.note_integrator(run, integ, fixed)
+        return integ
+
+    def note_integrator(self, run: str, integ, fixed: bool = False) -> None:
+        """Record which integrator a run used (name, solver and tolerance for implicit ones)."""
+        name = integ if isinstance(integ, str) else getattr(integ, "name", type(integ).__name__)
+        solver = getattr(integ, "solver", None)
+        if solver is not None and not isinstance(integ, str):
+            name += f" ({getattr(solver, 'name', type(solver).__name__)}, tol {getattr(integ, 'tol', 0):g})"
+        self.integrators_used.append(f"{run or 'run'}: {name}{' [fixed]' if fixed else ''}")
 
     def progress(self, message: str) -> None:
         if not self._quiet:
@@ -202,7 +296,8 @@ class StageContext:
 
 
 def run_lesson(lesson: Lesson, cfg, rec, stages: list[int] | None = None, out=sys.stdout,
-               err=sys.stderr, quiet: bool = False, results: list | None = None) -> bool:
+               err=sys.stderr, quiet: bool = False, results: list | None = None,
+               stepping: Stepping | None = None) -> bool:
     """Run the chosen stages; print and record each stage's table; return all-passed.
 
     Results are appended to ``results`` as they are produced, so an interrupted run
@@ -219,7 +314,7 @@ def run_lesson(lesson: Lesson, cfg, rec, stages: list[int] | None = None, out=sy
                       file=out)
             print(file=out, flush=True)
         rec.stage(index, stage.title, stage.narrative)
-        ctx = StageContext(lesson, cfg, rec, index, stream=err, quiet=quiet)
+        ctx = StageContext(lesson, cfg, rec, index, stream=err, quiet=quiet, stepping=stepping)
         t0 = time.perf_counter()
         try:
             experiments = stage.run(ctx)
@@ -228,11 +323,27 @@ def run_lesson(lesson: Lesson, cfg, rec, stages: list[int] | None = None, out=sy
             print(f"   error: {exc}", file=err, flush=True)
             experiments = [Experiment("stage ran without an unexpected blow-up", 0, exc.step + 1, 0, "<=")]
         print(text_table(experiments), file=out)
+        used = _summarise_integrators(ctx.integrators_used)
+        if used:
+            print(f"   integrators: {used}", file=out)
         print(f"   ({time.perf_counter() - t0:.1f} s)", file=out, flush=True)
-        rec.markdown("results", f"## {index}. {stage.title}: experiments\n\n" + markdown_table(experiments))
-        results.extend(e.to_dict(lesson.id, index, stage.title) for e in experiments)
+        rec.markdown("results", f"## {index}. {stage.title}: experiments\n\n" + markdown_table(experiments)
+                     + (f"\n\nIntegrators: {used}" if used else ""))
+        for e in experiments:
+            d = e.to_dict(lesson.id, index, stage.title)
+            d["integrators"] = sorted({u.split(": ", 1)[1] for u in ctx.integrators_used})
+            results.append(d)
         all_passed &= all(e.passed for e in experiments)
     return all_passed
+
+
+def _summarise_integrators(used: list[str]) -> str:
+    """'symplectic-euler x3; backward-euler (pcg, tol 1e-08) x1' from the per-run notes."""
+    counts: dict[str, int] = {}
+    for u in used:
+        name = u.split(": ", 1)[1]
+        counts[name] = counts.get(name, 0) + 1
+    return "; ".join(f"{k} x{v}" for k, v in counts.items())
 
 
 def write_json_atomic(path: str | os.PathLike, data) -> None:

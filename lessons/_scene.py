@@ -11,26 +11,41 @@ import math
 import numpy as np
 
 from engine import diagnostics
-from engine.integrators import get as get_integrator
+from engine.linalg import SolverError
 from engine import errors
 from engine.integrators.explicit import BlowUpError, _blowup_message, stable_dt_estimate
 
 
-def simulate(ctx, name: str, model, state, dt: float, n_steps: int, integrator: str = "symplectic-euler",
+def simulate(ctx, name: str, model, state, dt: float, n_steps: int, integrator="symplectic-euler",
              every: int | None = None, energy_bound: float | None = None, observe=None, log=None,
-             energy_every: int = 1):
-    """Advance ``state`` by ``n_steps`` steps of ``integrator``.
+             energy_every: int = 1, fixed: bool = False, **integrator_options):
+    """Advance ``state`` by ``n_steps`` steps of ``integrator`` (a name, with backward-Euler
+    ``integrator_options`` such as solver="cholesky", or an integrator object).
+
+    Unless ``fixed`` (the run is about that integrator), ``--integrator/--solver/--tol/
+    --newton-iterations`` replace the run's choice; an explicit integrator chosen that way at a dt
+    above 0.9x the stable (Gershgorin) estimate takes enough sub-steps per step to stay below it,
+    so the run covers the same simulated time with the same steps, observations and frames.
 
     After every ``energy_every``-th step the kinetic and potential energy (J) are computed; a
     total above ``energy_bound`` or non-finite raises BlowUpError naming that step (after
-    logging everything up to it and marking it in the recording). Every ``every`` steps (and
-    at step 0) ``log(rec, state)`` draws the geometry (if recording) and
-    ``observe(step, state)`` is called (for measurements). Returns (steps, kinetic, potential)
-    arrays at the energy samples.
+    logging everything up to it and marking it in the recording), with the CFL limit for explicit
+    integrators; a linear solve of backward Euler that does not converge is reported the same
+    way, naming the solver. Every ``every`` steps (and at step 0) ``log(rec, state)`` draws the
+    geometry (if recording) and ``observe(step, state)`` is called (for measurements). Returns
+    (steps, kinetic, potential) arrays at the energy samples.
     """
     rec = ctx.rec
     every = int(every or getattr(ctx.cfg, "record_every", 20))
-    integ = get_integrator(integrator) if isinstance(integrator, str) else integrator
+    integ = ctx.integrator(integrator, fixed=fixed, run=name, **integrator_options)
+    substeps = 1
+    if not fixed and ctx.stepping.overridden and not getattr(integ, "implicit", False):
+        dts = stable_dt_estimate(model)
+        if dt > 0.9 * dts:
+            substeps = int(math.ceil(dt / (0.9 * dts)))
+            ctx.progress(f"{name}: {integ.name} needs dt <= {dts:.3g} s (CFL estimate) but the scene steps "
+                         f"{dt:.3g} s: taking {substeps} sub-steps per step")
+    h = dt / substeps
     rec.run(name)
     steps, kin, pot = [], [], []
 
@@ -51,6 +66,13 @@ def simulate(ctx, name: str, model, state, dt: float, n_steps: int, integrator: 
                 for s, ks, ws in zip(steps[first:], k, w):
                     rec.energies([ks], [ws], dt, first_step=s - 1)
 
+    def fail(s, E, exc_cls_message):
+        flush_energies(flushed)
+        draw(s)
+        rec.set_time(s, s * dt)
+        rec.mark(str(exc_cls_message), level="ERROR")
+        raise exc_cls_message
+
     draw(0)
     flushed = 0
     begin = getattr(integ, "begin", None)
@@ -58,10 +80,17 @@ def simulate(ctx, name: str, model, state, dt: float, n_steps: int, integrator: 
         begin(model, state)
     with ctx.timed(name, n_steps):
         for s in range(1, n_steps + 1):
-            if hasattr(integ, "advance"):
-                integ.advance(model, state, dt)
-            else:
-                integ.step(model, state, dt, 1)
+            try:
+                for _ in range(substeps):
+                    if hasattr(integ, "advance"):
+                        integ.advance(model, state, h)
+                    else:
+                        integ.step(model, state, h, 1)
+            except SolverError as err:
+                fail(s, math.nan, BlowUpError(
+                    f"{integ.name} failed at step {s - 1} (t={state.t:.4g} s): {err}; likely cause: the linear "
+                    f"solver did not converge (raise --tol, allow more iterations, or use --solver cholesky)",
+                    step=s - 1, time=state.t, energy=math.nan, dt=dt, dt_stable=math.inf, integrator=integ.name))
             if s % energy_every == 0 or s == n_steps:
                 K = diagnostics.kinetic_energy(model, state)
                 W = model.potential_energy(state.x)
@@ -70,15 +99,10 @@ def simulate(ctx, name: str, model, state, dt: float, n_steps: int, integrator: 
                 pot.append(W)
                 E = K + W
                 if not math.isfinite(E) or (energy_bound is not None and E > energy_bound):
-                    flush_energies(flushed)
-                    draw(s)
                     dts = stable_dt_estimate(model)
-                    exc = BlowUpError(_blowup_message(integ.name, s - 1, state.t, E, energy_bound, dt, dts),
-                                      step=s - 1, time=state.t, energy=E, dt=dt, dt_stable=dts,
-                                      integrator=integ.name)
-                    rec.set_time(s, s * dt)
-                    rec.mark(str(exc), level="ERROR")
-                    raise exc
+                    fail(s, E, BlowUpError(_blowup_message(integ.name, s - 1, state.t, E, energy_bound, h, dts),
+                                           step=s - 1, time=state.t, energy=E, dt=h, dt_stable=dts,
+                                           integrator=integ.name))
             if s % every == 0 or s == n_steps:
                 flush_energies(flushed)
                 flushed = len(kin)

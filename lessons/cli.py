@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 
 from . import registry
-from ._framework import _field_type, range_text, run_lesson, validate_config, write_json_atomic
+from ._framework import Stepping, _field_type, range_text, run_lesson, validate_config, write_json_atomic
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INT, EXIT_TERM = 0, 1, 2, 130, 143
 
@@ -47,8 +47,8 @@ def _number(kind: type, flag: str, meta: dict):
     return parse
 
 
-def _add_config_options(parser: argparse.ArgumentParser, config_cls) -> None:
-    group = parser.add_argument_group(f"lesson parameters ({config_cls.__name__})")
+def _add_config_options(parser: argparse.ArgumentParser, config_cls, title: str | None = None) -> None:
+    group = parser.add_argument_group(title or f"lesson parameters ({config_cls.__name__})")
     defaults = config_cls()
     for f in dataclasses.fields(config_cls):
         meta = f.metadata
@@ -57,7 +57,8 @@ def _add_config_options(parser: argparse.ArgumentParser, config_cls) -> None:
         kind = _field_type(f)
         flag = "--" + f.name.replace("_", "-")
         unit = f" [{meta['unit']}]" if meta.get("unit") else ""
-        help_ = f"{meta['help']}{unit}; {range_text(meta)} (default: {getattr(defaults, f.name)})"
+        default = getattr(defaults, f.name)
+        help_ = f"{meta['help']}{unit}; {range_text(meta)}" + ("" if default is None else f" (default: {default})")
         if kind is bool:
             group.add_argument(flag, dest=f.name, action=argparse.BooleanOptionalAction, default=None, help=help_)
         elif kind is str:
@@ -95,6 +96,8 @@ def _run_parser(lesson_ids: list[str], lesson=None) -> argparse.ArgumentParser:
                    help="Taichi backend: cpu, cuda or vulkan (default: cpu, or $ELASTIC_ARCH)")
     p.add_argument("--view", action="store_true", help="open the recording in the Rerun viewer afterwards")
     p.add_argument("--quiet", action="store_true", help="print only the tables, not the narratives and progress")
+    _add_config_options(p, Stepping, "time stepping (every lesson; runs that test one particular integrator "
+                                     "keep it and are marked [fixed] in the stage's integrator line)")
     if lesson is not None:
         _add_config_options(p, lesson.config)
     return p
@@ -176,6 +179,8 @@ def run(argv: list[str], out=sys.stdout, err=sys.stderr) -> int:
     chosen = lessons_ if args.lesson == "all" else [lesson]
     overrides = {f.name: getattr(args, f.name) for f in dataclasses.fields(lesson.config)
                  if getattr(args, f.name, None) is not None} if lesson else {}
+    stepping = Stepping(**{f.name: getattr(args, f.name) for f in dataclasses.fields(Stepping)
+                           if getattr(args, f.name, None) is not None})
     if args.stage is not None:
         if len(chosen) != 1:
             raise UsageError("--stage needs a single lesson, not 'all'")
@@ -185,6 +190,7 @@ def run(argv: list[str], out=sys.stdout, err=sys.stderr) -> int:
     # Validate everything before any kernel runs or any file is written.
     configs = {}
     try:
+        validate_config(stepping)
         for l in chosen:
             cfg = l.config(**overrides) if l is lesson else l.config()
             validate_config(cfg)
@@ -214,7 +220,7 @@ def run(argv: list[str], out=sys.stdout, err=sys.stderr) -> int:
             rec = _make_recorder(l, paths[l.id])
             try:
                 ok = run_lesson(l, configs[l.id], rec, [args.stage] if args.stage else None,
-                                out=out, err=err, quiet=args.quiet, results=results)
+                                out=out, err=err, quiet=args.quiet, results=results, stepping=stepping)
             finally:
                 final = rec.close()
             if final is not None:

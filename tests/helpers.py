@@ -5,18 +5,26 @@ import sys
 from pathlib import Path
 
 from engine.recorder import NullRecorder
-from lessons._framework import StageContext
+from lessons._framework import StageContext, Stepping
 
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def run_stage(lesson, index, rec=None, **overrides):
-    """Run one stage of a lesson without printing; returns {claim: Experiment}."""
+def run_stage(lesson, index, rec=None, stepping=None, used=None, **overrides):
+    """Run one stage of a lesson without printing; returns {claim: Experiment}.
+
+    ``stepping``: a lessons._framework.Stepping (or a dict of its fields, e.g.
+    dict(integrator="backward-euler")); ``used``: a list that receives the stage's
+    "run: integrator" notes."""
     cfg = lesson.config(**overrides)
-    ctx = StageContext(lesson, cfg, rec or NullRecorder(), index, quiet=True)
+    if isinstance(stepping, dict):
+        stepping = Stepping(**stepping)
+    ctx = StageContext(lesson, cfg, rec or NullRecorder(), index, quiet=True, stepping=stepping)
     if rec is not None:
         rec.stage(index, lesson.stages[index - 1].title, lesson.stages[index - 1].narrative)
     experiments = lesson.stages[index - 1].run(ctx)
+    if used is not None:
+        used.extend(ctx.integrators_used)
     return {e.claim: e for e in experiments}
 
 
