@@ -60,6 +60,12 @@ def test_failed_experiment_gives_exit_1_and_is_in_results(tmp_path):
     (["run", "rod-waves", "--record", "blocker/sub/x.rrd"], "--record blocker/sub/x.rrd: cannot write there"),
     (["run", "rod-waves", "--threads", "0"], "--threads must be an integer in 1..256"),
     (["run", "rod-waves", "--arch", "tpu"], "--arch must be one of cpu, cuda, vulkan"),
+    (["run", "rod-waves", "--integrator", "rk4"], "--integrator must be one of default, forward-euler"),
+    (["run", "all", "--integrator", "implicit"], "--integrator must be one of"),
+    (["run", "bending", "--solver", "lu"], "--solver must be one of default, pcg, cholesky (got 'lu')"),
+    (["run", "springs", "--tol", "0"], "--tol must be > 0.0 and < 1.0 (got 0.0)"),
+    (["run", "springs", "--tol", "inf"], "--tol must be a finite number"),
+    (["run", "springs", "--newton-iterations", "0"], "--newton-iterations must be ≥ 1 and ≤ 100 (got 0)"),
     (["run"], "LESSON is required"),
     (["frobnicate"], "command must be 'list' or 'run'"),
 ])
@@ -71,6 +77,24 @@ def test_bad_input_is_one_line_exit_2_and_writes_nothing(tmp_path, args, needle)
     assert len(lines) == 1, r.stderr
     assert needle in lines[0]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["blocker"]
+
+
+def test_stepping_options_are_listed_in_help(tmp_path):
+    r = cli("run", "bending", "--help", cwd=tmp_path)
+    assert r.returncode == 0
+    out = " ".join(r.stdout.split())
+    for option in ("--integrator NAME", "--solver NAME", "--tol FLOAT", "--newton-iterations INT"):
+        assert option in out
+    assert "backward-euler" in out and "cholesky" in out
+
+
+def test_integrator_choice_reaches_the_runs_and_the_results(tmp_path):
+    r = cli("run", "bending", "--stage", "5", "--integrator", "backward-euler", "--solver", "pcg",
+            "--tol", "1e-9", "--no-record", "--results", "res.json", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert "integrators: backward-euler (pcg, tol 1e-09)" in r.stdout
+    rows = json.loads((tmp_path / "res.json").read_text())
+    assert rows and all(row["integrators"] == ["backward-euler (pcg, tol 1e-09)"] for row in rows)
 
 
 def test_unavailable_gpu_arch_is_a_clear_error(tmp_path):
