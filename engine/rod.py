@@ -17,19 +17,26 @@ launch costs ~0.1 ms, more than a step of a 1000-node rod). Every step also reco
 kinetic and potential energy and stops at the first step whose total energy leaves the
 given bound or is not finite (blow-up detection at the step it happens).
 
-Integrators: forward Euler, symplectic Euler (both explicit, CFL-limited) and backward
-Euler, which for this linear rod is exactly one tridiagonal solve per step
-((M + dt^2 K) v' = M v + dt f(x); x' = x + dt v'), done with the Thomas algorithm.
+Integrators: forward Euler, symplectic Euler and velocity Verlet (explicit, CFL-limited;
+velocity Verlet is kick(dt/2)-drift(dt)-kick(dt/2)) and backward Euler, which for this linear
+rod is exactly one tridiagonal solve per step ((M + dt^2 K) v' = M v + dt f(x); x' = x + dt v'),
+done with the Thomas algorithm.
+
+Reference theory of the schemes (numpy, for checks): the rod is linear, f = -K (x - p), so in
+the normal modes of K phi = w^2 M phi every scheme is a 2x2 matrix acting on one mode's
+(q, dq/dt) per step (:func:`amplification`); :class:`ModalReference` evolves an initial state
+mode by mode with those matrices and sums the modes again.
 """
 
 import numpy as np
+import scipy.linalg as sla
 import taichi as ti
 
 from .errors import BlowUpError, ParameterError
 
-FORWARD_EULER, SYMPLECTIC_EULER, BACKWARD_EULER = 0, 1, 2
+FORWARD_EULER, SYMPLECTIC_EULER, BACKWARD_EULER, VELOCITY_VERLET = 0, 1, 2, 3
 METHODS = {"forward-euler": FORWARD_EULER, "symplectic-euler": SYMPLECTIC_EULER,
-           "backward-euler": BACKWARD_EULER}
+           "backward-euler": BACKWARD_EULER, "velocity-verlet": VELOCITY_VERLET}
 
 F1 = ti.types.ndarray(dtype=float, ndim=1)
 
@@ -111,6 +118,16 @@ def rod_run(x: F1, v: F1, h: F1, E: F1, m: F1, inv_m: F1, work: F1, work2: F1,
             for i in range(n):
                 v[i] += dt * work[i] * inv_m[i]
                 x[i] += dt * v[i]
+        elif method == 3:  # velocity Verlet: kick dt/2 with f(x_n), drift dt, kick dt/2 with f(x_{n+1})
+            for i in range(n):
+                work[i] = _force(x, h, E, i, n)
+            for i in range(n):
+                v[i] += 0.5 * dt * work[i] * inv_m[i]
+                x[i] += dt * v[i]
+            for i in range(n):
+                work[i] = _force(x, h, E, i, n)
+            for i in range(n):
+                v[i] += 0.5 * dt * work[i] * inv_m[i]
         else:  # backward Euler: (M + dt^2 K) v' = M v + dt f(x); Thomas algorithm
             # row i: a_i v_{i-1} + b_i v_i + c_i v_{i+1} = d_i, with k_j = E_j / h_j.
             # work holds the modified upper diagonal c', work2 the modified rhs d'.
@@ -230,7 +247,7 @@ class Rod:
         return float(np.sqrt(np.max(row[free] / self.mass[free])))
 
     def stable_dt(self) -> float:
-        """Largest dt with w_max dt <= 2 (symplectic Euler's limit); conservative."""
+        """Largest dt with w_max dt <= 2 (symplectic Euler's and velocity Verlet's limit); conservative."""
         return 2.0 / self.omega_max_bound()
 
     def stiffness_matrix(self) -> np.ndarray:
@@ -243,6 +260,26 @@ class Rod:
         K[idx, idx + 1] -= k
         K[idx + 1, idx] -= k
         return K
+
+    def normal_modes(self):
+        """(w2, Phi, free): the eigenpairs K Phi = M Phi diag(w2) of the free nodes (numpy, for
+        reference checks), Phi M-orthonormal (Phi^T M Phi = I), w2 ascending (rigid modes ~ 0,
+        clipped at 0); ``free`` the indices of the unpinned nodes. Computed once per rod.
+
+        K restricted to the free nodes is tridiagonal, so S = M^-1/2 K M^-1/2 is a symmetric
+        tridiagonal matrix and LAPACK's tridiagonal eigensolver gives S = Y diag(w2) Y^T;
+        Phi = M^-1/2 Y."""
+        if getattr(self, "_modes", None) is None:
+            free = np.flatnonzero(~self.pinned)
+            k = self.E / self.h
+            diag = np.zeros(self.n)
+            diag[:-1] += k
+            diag[1:] += k
+            off = np.where(np.diff(free) == 1, -k[free[:-1]], 0.0)  # coupling of consecutive free nodes
+            s = 1.0 / np.sqrt(self.mass[free])
+            w2, Y = sla.eigh_tridiagonal(diag[free] * s * s, off * s[:-1] * s[1:])
+            self._modes = (np.clip(w2, 0.0, None), s[:, None] * Y, free)
+        return self._modes
 
     # --- kernels wrappers ------------------------------------------------------
     def energy(self, x) -> float:
@@ -286,8 +323,8 @@ class Rod:
         state.t += dt * (done + (1 if done < n_steps else 0))
         if done < n_steps:
             cause = self._blowup_cause(method, dt)
-            exc = BlowUpError(step_offset + done, K[done] + W[done], cause,
-                              self.stable_dt() if method != "backward-euler" else None)
+            exc = BlowUpError(step_offset + done, K[done] + W[done], cause,  # a dt limit only where one exists
+                              self.stable_dt() if method in ("symplectic-euler", "velocity-verlet") else None)
             exc.kinetic, exc.potential = K[:done + 1], W[:done + 1]  # energies up to the bad step
             raise exc
         return K, W
@@ -295,13 +332,103 @@ class Rod:
     def _blowup_cause(self, method: str, dt: float) -> str:
         limit = self.stable_dt()
         if method == "forward-euler":
-            return "forward Euler adds energy at every dt (it is unconditionally unstable without damping)"
-        if method == "symplectic-euler":
+            return ("forward Euler adds energy at every dt (it is unconditionally unstable without damping); "
+                    "use symplectic-euler, velocity-verlet or backward-euler")
+        if method in ("symplectic-euler", "velocity-verlet"):
             if dt > limit:
                 return (f"dt = {dt:.6g} s exceeds the CFL limit {limit:.6g} s (w_max dt = "
                         f"{dt * self.omega_max_bound():.4g} > 2)")
             return "energy left its bound below the CFL limit (check the initial state and the bound)"
         return "backward Euler lost energy bound: this should not happen for a linear rod"
+
+
+def amplification(method: str, w2, dt: float) -> np.ndarray:
+    """The per-step matrix of ``method`` for the mode equation q'' = -w^2 q, acting on (q, q').
+
+    With a2 = (w dt)^2:
+      forward Euler     [[1, dt], [-dt w^2, 1]]                   (det 1 + a2: grows)
+      symplectic Euler  [[1 - a2, dt], [-dt w^2, 1]]              (det 1; stable iff a2 <= 4)
+      velocity Verlet   [[1 - a2/2, dt], [-dt w^2 (1 - a2/4), 1 - a2/2]]   (det 1; same limit)
+      backward Euler    [[1, dt], [-dt w^2, 1]] / (1 + a2)        (det 1/(1 + a2): damps)
+    Symplectic Euler and velocity Verlet have the same trace 2 - a2, hence the same eigenvalues
+    (phase per step theta with cos theta = 1 - a2/2): the same dispersion and stability limit.
+    Backward Euler's eigenvalues are 1/(1 -+ i w dt): amplitude 1/sqrt(1 + a2), phase atan(w dt).
+    Returns an array of shape w2.shape + (2, 2)."""
+    w2 = np.asarray(w2, dtype=np.float64)
+    a2 = w2 * dt * dt
+    A = np.empty(w2.shape + (2, 2))
+    if method == "forward-euler":
+        A[..., 0, 0], A[..., 0, 1], A[..., 1, 0], A[..., 1, 1] = 1.0, dt, -dt * w2, 1.0
+    elif method == "symplectic-euler":
+        A[..., 0, 0], A[..., 0, 1], A[..., 1, 0], A[..., 1, 1] = 1.0 - a2, dt, -dt * w2, 1.0
+    elif method == "velocity-verlet":
+        A[..., 0, 0], A[..., 0, 1] = 1.0 - 0.5 * a2, dt
+        A[..., 1, 0], A[..., 1, 1] = -dt * w2 * (1.0 - 0.25 * a2), 1.0 - 0.5 * a2
+    elif method == "backward-euler":
+        A[..., 0, 0], A[..., 0, 1], A[..., 1, 0], A[..., 1, 1] = 1.0, dt, -dt * w2, 1.0
+        A /= (1.0 + a2)[..., None, None]
+    else:
+        raise ParameterError(f"integrator must be one of {', '.join(METHODS)} (got {method!r})")
+    return A
+
+
+class ModalReference:
+    """What ``method`` at step ``dt`` does to a rod's initial state, computed mode by mode in
+    numpy (a reference for lessons and tests, independent of the kernels).
+
+    The initial displacement u0 and velocity v0 are projected on the normal modes
+    (q = Phi^T M u), each mode's (q, q') is multiplied by ``amplification(method, w^2, dt)``
+    to the power of the step count, and the modes are summed again (u = Phi q; pinned nodes 0).
+    """
+
+    def __init__(self, rod: Rod, u0, v0=None, dt: float = 1.0, method: str = "symplectic-euler"):
+        w2, self.phi, self.free = rod.normal_modes()
+        m = rod.mass[self.free]
+        u0 = np.asarray(u0, dtype=np.float64)
+        v0 = np.zeros(rod.n) if v0 is None else np.asarray(v0, dtype=np.float64)
+        self.q0 = self.phi.T @ (m * u0[self.free])
+        self.p0 = self.phi.T @ (m * v0[self.free])
+        self.A = amplification(method, w2, float(dt))
+        self.n, self.dt, self.method = rod.n, float(dt), method
+
+    def modes(self, step: int):
+        """Modal coordinates (q, q') after ``step`` steps."""
+        P = np.linalg.matrix_power(self.A, int(step))
+        return (P[:, 0, 0] * self.q0 + P[:, 0, 1] * self.p0, P[:, 1, 0] * self.q0 + P[:, 1, 1] * self.p0)
+
+    def displacement(self, step: int) -> np.ndarray:
+        """u = x - p at every node after ``step`` steps."""
+        u = np.zeros(self.n)
+        u[self.free] = self.phi @ self.modes(step)[0]
+        return u
+
+    def velocity(self, step: int) -> np.ndarray:
+        v = np.zeros(self.n)
+        v[self.free] = self.phi @ self.modes(step)[1]
+        return v
+
+    def displacements(self, steps) -> np.ndarray:
+        """u after each of the non-decreasing ``steps`` (one row per step), advancing the modes from
+        one step to the next and summing them with one matrix product (much faster than calling
+        :meth:`displacement` for each)."""
+        steps = [int(s) for s in steps]
+        if any(b < a for a, b in zip(steps, steps[1:])) or (steps and steps[0] < 0):
+            raise ValueError("steps must be non-negative and non-decreasing")
+        q, p = self.q0, self.p0
+        Q = np.empty((q.size, len(steps)))
+        powers, prev = {}, 0
+        for j, s in enumerate(steps):
+            d = s - prev
+            if d:
+                P = powers.get(d)
+                if P is None:
+                    P = powers[d] = np.linalg.matrix_power(self.A, d)
+                q, p = P[:, 0, 0] * q + P[:, 0, 1] * p, P[:, 1, 0] * q + P[:, 1, 1] * p
+            Q[:, j] = q
+            prev = s
+        U = np.zeros((len(steps), self.n))
+        U[:, self.free] = (self.phi @ Q).T
+        return U
 
 
 class RodState:

@@ -242,3 +242,82 @@ def test_stage5_hanging_rod(stages):
         assert s[f"{kind} grid: nodal displacement = (rho g/E)(L p - p^2/2) (max rel. error)"].measured < 1e-9
         r = s[f"{kind} grid: pin reaction carries the whole weight rho g L"]
         assert r.theory == pytest.approx(9.81) and r.measured == pytest.approx(9.81, rel=1e-8)
+
+
+# ------------------------------------------------------------------------------------------
+# --integrator: stage 4's pulses are scene runs, stage 2's runs are fixed, 1, 3, 5 do not step
+# ------------------------------------------------------------------------------------------
+
+SMALL = dict(wave_segments=1000)  # the smallest chains stage 4 allows: keeps backward Euler's runs short
+
+
+@pytest.fixture(scope="module")
+def backward():
+    """Every stage under --integrator backward-euler: (experiments, integrator notes) per stage."""
+    out = {}
+    for i in range(1, len(LESSON.stages) + 1):
+        used = []
+        out[i] = (run_stage(LESSON, i, stepping=dict(integrator="backward-euler"), used=used, **SMALL), used)
+    return out
+
+
+@pytest.mark.parametrize("stage", [1, 2, 3, 4, 5])
+def test_backward_euler_every_stage_passes(backward, stage):
+    assert_all_passed(backward[stage][0])
+
+
+def test_backward_euler_scene_runs_use_it_and_fixed_runs_keep_theirs(backward, stages):
+    for i in (1, 3, 5):
+        assert backward[i][1] == []  # no time stepping
+    fixed = backward[2][1]
+    assert len(fixed) == 18 and all(u.endswith("[fixed]") for u in fixed), fixed
+    assert "chain_velocity-verlet: velocity-verlet [fixed]" in fixed
+    assert not any("backward" in u for u in fixed)
+    assert {k: e.measured for k, e in stages[2].items()} == {k: e.measured for k, e in backward[2][0].items()}
+    scene = backward[4][1]
+    assert {u.split(": ")[0] for u in scene} == {"matched_uniform", "matched_alternating", "matched_graded",
+                                                 "constant_kappa_uniform", "constant_kappa_alternating"}
+    assert all(u.endswith(": backward-euler (pcg, tol 1e-08)") for u in scene), scene
+
+
+def test_backward_euler_speeds_are_its_modal_prediction(backward):
+    s = backward[4][0]
+    c = 10.0
+    for kind in ("uniform", "alternating", "graded"):
+        e = next(v for k, v in s.items() if k.startswith(f"k_j = rho c^2 ({kind} lengths") and "backward-euler" in k)
+        # slowed a little (phase atan(w dt) < w dt), much less than the 1% tolerance
+        assert 0.998 * c < e.theory < c and abs(e.measured / e.theory - 1) < 1e-5
+    alt = next(v for k, v in s.items() if k.startswith("one Hooke constant kappa (alternating"))
+    assert alt.theory == pytest.approx(c * math.sqrt(1.5), rel=2e-3) and alt.theory < c * math.sqrt(1.5)
+
+
+def test_velocity_verlet_pulses_meet_the_undamped_theory():
+    used = []
+    s = run_stage(LESSON, 4, stepping=dict(integrator="velocity-verlet"), used=used, **SMALL)
+    assert_all_passed(s)
+    assert len(used) == 5 and all(u.endswith(": velocity-verlet") for u in used), used
+    default = run_stage(LESSON, 4, **SMALL)
+    assert set(s) == set(default) and all(s[k].theory == default[k].theory for k in s)
+
+
+def test_backward_euler_with_cholesky_on_one_chain():
+    """--solver cholesky reaches the scheme's prediction too (one chain: the cost is in the factorisations)."""
+    from lessons._framework import StageContext, Stepping
+    from engine.recorder import NullRecorder
+    from lessons import springs
+    cfg = SpringsConfig(**SMALL)
+    ctx = StageContext(LESSON, cfg, NullRecorder(), 4, quiet=True,
+                       stepping=Stepping(integrator="backward-euler", solver="cholesky"))
+    h = 1.0 / cfg.wave_segments
+    Ls = springs._chain_lengths("graded", h)
+    k = np.full(Ls.size, 100.0)
+    model, p = springs._chain_model(Ls, k, 1.0)
+    v, v_pred = springs._pulse_speed(ctx, "graded", model, p, 10.0, 30 * h, k, 1.0)
+    assert ctx.integrators_used == ["graded: backward-euler (cholesky, tol 1e-08)"]
+    assert abs(v / v_pred - 1) < 1e-5 and 9.98 < v_pred < 10.0
+
+
+def test_forward_euler_pulse_is_stopped_at_the_step():
+    with pytest.raises(errors.BlowUpError, match="forward Euler adds energy") as info:
+        run_stage(LESSON, 4, stepping=dict(integrator="forward-euler"), **SMALL)
+    assert 0 < info.value.step < 1000

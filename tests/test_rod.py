@@ -118,3 +118,100 @@ def test_bad_dt_is_refused(dt):
     rod = Rod.uniform(11)
     with pytest.raises(ParameterError, match="dt must be > 0"):
         rod.run(rod.new_state(), dt, 1)
+
+
+# ------------------------------------------------------------------------------------------
+# velocity Verlet and the per-mode theory of every scheme (engine.rod.amplification)
+# ------------------------------------------------------------------------------------------
+
+from engine.rod import METHODS, ModalReference, amplification  # noqa: E402
+
+
+@pytest.mark.parametrize("method", list(METHODS))
+@pytest.mark.parametrize("pinned", [(), (0,), (0, 25, 59)])
+def test_kernel_equals_the_schemes_modal_theory(method, pinned):
+    """Every integrator of the rod kernel is, mode by mode, its 2x2 amplification matrix."""
+    rod, rng = random_rod(seed=8)
+    rod = Rod(rod.p, rod.E, rod.rho, pinned)
+    u0, v0 = 1e-3 * rng.standard_normal(rod.n), 1e-3 * rng.standard_normal(rod.n)
+    u0[list(pinned)] = 0.0
+    v0[list(pinned)] = 0.0
+    dt = 0.8 * rod.stable_dt()
+    st = rod.new_state(u0, v0)
+    rod.run(st, dt, 40, method)
+    rod.run(st, dt, 17, method)  # two launches: a chunked run is the same run
+    ref = ModalReference(rod, u0, v0, dt, method)
+    u, v = ref.displacement(57), ref.velocity(57)
+    assert np.max(np.abs(st.displacement(rod) - u)) < 1e-11 * np.max(np.abs(u))
+    assert np.max(np.abs(st.velocity() - v)) < 1e-11 * np.max(np.abs(v))
+    np.testing.assert_allclose(ref.displacements([0, 20, 57, 57]), [u0, ref.displacement(20), u, u],
+                               rtol=0, atol=1e-13 * np.max(np.abs(u)))
+
+
+def test_amplification_determinants_and_traces():
+    w2, dt = np.array([0.0, 0.3, 2.0, 3.9]), 1.0
+    det = lambda m: np.linalg.det(amplification(m, w2, dt))
+    tr = lambda m: np.trace(amplification(m, w2, dt), axis1=-2, axis2=-1)
+    np.testing.assert_allclose(det("forward-euler"), 1 + w2, rtol=1e-14)
+    np.testing.assert_allclose(det("backward-euler"), 1 / (1 + w2), rtol=1e-14)
+    for m in ("symplectic-euler", "velocity-verlet"):  # area-preserving, same trace: same eigenvalues
+        np.testing.assert_allclose(det(m), 1.0, rtol=1e-14)
+        np.testing.assert_allclose(tr(m), 2 - w2, rtol=1e-14)
+    with pytest.raises(ParameterError, match="integrator must be one of"):
+        amplification("leapfrog", w2, dt)
+
+
+def test_velocity_verlet_is_symplectic_euler_with_half_step_shifted_velocities():
+    """Symplectic Euler started from v0 - dt/2 a(x0) visits exactly velocity Verlet's positions;
+    its velocities are Verlet's half-step velocities, whose averages are Verlet's velocities."""
+    rod, rng = random_rod(seed=9)
+    u0, v0 = 1e-3 * rng.standard_normal(rod.n), 1e-3 * rng.standard_normal(rod.n)
+    dt = 0.9 * rod.stable_dt()
+    a0 = rod.forces(rod.p + u0) / rod.mass
+    vv, se = rod.new_state(u0, v0), rod.new_state(u0, v0 - 0.5 * dt * a0)
+    for _ in range(300):
+        rod.run(vv, dt, 1, "velocity-verlet")
+        rod.run(se, dt, 1, "symplectic-euler")
+        # x = p + u is of order 1 m: round-off of x, not of u
+        assert np.max(np.abs(vv.x.to_numpy() - se.x.to_numpy())) < 1e-13
+    v_before = se.velocity()  # v_{n-1/2}
+    rod.run(se, dt, 1, "symplectic-euler")  # v_{n+1/2}: Verlet's v_n is their mean
+    np.testing.assert_allclose(vv.velocity(), 0.5 * (v_before + se.velocity()), rtol=0,
+                               atol=1e-11 * np.max(np.abs(vv.velocity())))
+
+
+@pytest.mark.parametrize("method,order", [("velocity-verlet", 2.0), ("symplectic-euler", 1.0)])
+def test_time_convergence_order(method, order):
+    """One mode of a pinned rod against the exact solution u0 cos(w t) of the semi-discrete rod:
+    the largest error at ten common times in [0, T] falls like dt^order."""
+    rod = Rod.uniform(101, pinned=(0, 100))
+    h, j, T = rod.h[0], 3, 1.0
+    w = 2 / h * np.sin(j * np.pi * h / 2)
+    u0 = 1e-3 * np.sin(j * np.pi * rod.p)
+    errs, dts = [], []
+    for n in (400, 800, 1600, 3200):
+        st = rod.new_state(u0)
+        err = 0.0
+        for k in range(1, 11):
+            rod.run(st, T / n, n // 10, method)
+            err = max(err, np.max(np.abs(st.displacement(rod) - u0 * np.cos(w * k * T / 10))) / 1e-3)
+        errs.append(err)
+        dts.append(T / n)
+    slope = np.polyfit(np.log(dts), np.log(errs), 1)[0]
+    assert abs(slope - order) < 0.05
+
+
+def test_velocity_verlet_has_the_cfl_limit_and_forward_euler_no_dt_advice():
+    rod = Rod.uniform(201)
+    rng = np.random.default_rng(1)
+    u0 = 1e-6 * rng.standard_normal(rod.n)
+    E0 = rod.energy(rod.p + u0)
+    st = rod.new_state(u0)
+    K, W = rod.run(st, 0.99 * rod.h[0], 5000, "velocity-verlet", energy_bound=100 * E0)
+    assert np.max(K + W) < 2 * E0
+    with pytest.raises(BlowUpError) as info:
+        rod.run(rod.new_state(u0), 1.01 * rod.h[0], 5000, "velocity-verlet", energy_bound=100 * E0)
+    assert info.value.step < 300 and "CFL" in str(info.value) and "use dt <=" in str(info.value)
+    with pytest.raises(BlowUpError) as info:
+        rod.run(rod.new_state(u0), 0.5 * rod.h[0], 5000, "forward-euler", energy_bound=100 * E0)
+    assert "forward Euler adds energy at every dt" in str(info.value) and "use dt <=" not in str(info.value)
