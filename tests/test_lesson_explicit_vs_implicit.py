@@ -1,0 +1,163 @@
+"""Lesson explicit-vs-implicit: every experiment, with its key figures asserted explicitly, the
+recording, and that every run is fixed (about one integrator) whatever --integrator says.
+
+Engine-level checks of backward Euler and its linear solvers are in tests/test_implicit.py,
+tests/test_linalg.py and tests/test_implicit_more.py; they are not repeated here.
+"""
+import math
+
+import pytest
+
+from engine.errors import ParameterError
+from engine.recorder import Recorder, summarize
+from lessons._framework import validate_config
+from lessons.explicit_vs_implicit import LESSON, ExplicitImplicitConfig, _crossover, symplectic_euler_growth
+from tests.helpers import assert_all_passed, run_stage
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    path = tmp_path_factory.mktemp("explicit_vs_implicit") / "evi.rrd"
+    rec = Recorder(path, "test_explicit_vs_implicit")
+    stages, used = {}, {}
+    for i in range(1, len(LESSON.stages) + 1):
+        used[i] = []
+        stages[i] = run_stage(LESSON, i, rec=rec, used=used[i])
+    rec.close()
+    return stages, used, path
+
+
+@pytest.fixture(scope="module")
+def stages(recording):
+    return recording[0]
+
+
+def find(stage, start):
+    """The experiment whose claim starts with ``start`` (claims carry measured numbers)."""
+    hits = [e for claim, e in stage.items() if claim.startswith(start)]
+    assert len(hits) == 1, (start, list(stage))
+    return hits[0]
+
+
+def test_stage1_cfl_limit_and_blow_up(stages):
+    s = stages[1]
+    assert_all_passed(s)
+    power = find(s, "power iteration's w_max^2 equals the dense eigenvalue")
+    assert abs(power.measured / power.theory - 1) < 1e-4
+    gersh = find(s, "Gershgorin's dt is safe")
+    assert 0.8 < gersh.measured / gersh.theory <= 1.0  # safe, and tight on this grid
+    survive = find(s, "symplectic Euler at 0.9 x the limit survives")
+    assert survive.measured == survive.theory > 1000
+    blow = find(s, "symplectic Euler at 1.1 x the limit blows up")
+    assert 3 <= blow.measured <= 50  # caught within tens of steps of the release
+    assert s["the blow-up message names the CFL limit"].measured == 1.0
+    growth = find(s, "the seed grows as the modes' step matrices predict")
+    assert growth.theory > 1e3 and abs(growth.measured / growth.theory - 1) < 1e-2
+
+
+def test_stage1_backward_euler_far_above_the_limit(stages):
+    s = stages[1]
+    for factor in ("10", "100"):
+        energy = find(s, f"backward Euler at {factor} x the limit: total energy never exceeds the start")
+        assert energy.measured < energy.theory
+        eq = find(s, f"backward Euler at {factor} x: reaches the hanging equilibrium")
+        assert eq.measured < 1e-3
+    assert find(s, "backward Euler at 100 x: reaches").measured < 1e-6  # damped out completely
+    assert find(s, "every Newton iteration lowered the incremental potential").measured == 0
+    assert s["every linear solve reached its tolerance (largest relative residual)"].measured <= 1e-8
+    assert s["pinned corners never moved (max displacement over all runs)"].measured == 0.0
+
+
+@pytest.mark.parametrize("wdt", [0.1, 1.0, 0.3, 3.0, 30.0])
+def test_stage2_damping_factor(stages, wdt):
+    e = stages[2][f"backward Euler: energy factor per step of a mode at w dt = {wdt:g} is 1/(1 + w^2 dt^2)"]
+    assert e.theory == pytest.approx(1.0 / (1.0 + wdt * wdt), rel=1e-14)
+    assert abs(e.measured / e.theory - 1) < 1e-5
+
+
+def test_stage2_orders(stages):
+    s = stages[2]
+    assert_all_passed(s)
+    assert abs(find(s, "backward Euler converges at first order").measured - 1) < 0.1
+    assert abs(find(s, "symplectic Euler (from rest under gravity) converges at first order").measured - 1) < 0.05
+    assert abs(s["velocity Verlet converges at second order"].measured - 2) < 0.1
+    assert find(s, "symplectic Euler started from v0 - dt a(x0)/2 has Verlet's positions").measured < 1e-6
+    ref = find(s, "the reference's Verlet run has 1/64")
+    assert abs(ref.measured * 64 - 1) < 0.05
+
+
+def test_stage3_counts(stages):
+    s = stages[3]
+    assert_all_passed(s)
+    assert find(s, "every timed run stayed bounded").measured == 0
+    assert abs(find(s, "explicit steps per simulated second grow like E^(1/2)").measured - 0.5) < 0.01
+    assert find(s, "backward Euler keeps dt").measured <= 0.0
+    grow = s["PCG iterations per step grow with E (stiffest / softest)"]
+    assert grow.measured > 2.0
+    slope = find(s, "PCG iterations per step grow no faster than sqrt(1 + w_max^2 dt^2)")
+    assert 0.0 < slope.measured < slope.theory and slope.theory == pytest.approx(0.5, abs=0.02)
+
+
+def test_every_run_is_fixed_and_noted(recording):
+    _, used, _ = recording
+    for i, notes in used.items():
+        assert notes and all(n.endswith("[fixed]") for n in notes), (i, notes)
+    assert any("symplectic-euler" in n for n in used[1]) and any("backward-euler (pcg" in n for n in used[1])
+    names = " ".join(used[2])
+    assert "velocity-verlet" in names and "symplectic-euler" in names and "backward-euler (cholesky" in names
+    assert sum("backward-euler (cholesky" in n for n in used[3]) == sum("backward-euler (pcg" in n for n in used[3])
+
+
+def test_stepping_options_do_not_change_fixed_runs():
+    """--integrator/--solver/--tol leave this lesson's runs alone (a small stage-3 sweep)."""
+    small = dict(speed_n=8, E_values=3, frames=3)
+    used = []
+    s = run_stage(LESSON, 3, stepping=dict(integrator="velocity-verlet", solver="cholesky", tol=1e-3), used=used,
+                  **small)
+    assert len(used) == 9 and all(n.endswith("[fixed]") for n in used), used
+    assert sum(": symplectic-euler [fixed]" in n for n in used) == 3
+    assert sum("backward-euler (pcg, tol 1e-08) [fixed]" in n for n in used) == 3
+    default = run_stage(LESSON, 3, **small)
+    assert set(s) == set(default)
+    # the same runs: the same counts (up to the round-off of two-thread reductions)
+    for claim in ("explicit steps per simulated second", "PCG iterations per step grow with E"):
+        e = find(s, claim)
+        assert e.measured == pytest.approx(find(default, claim).measured, rel=1e-6)
+
+
+def test_recording_has_meshes_energies_blow_up_marks_and_timings(recording):
+    _, _, path = recording
+    info = summarize(path)
+    below = info["/stage1/symplectic_0.9x/mesh"]
+    assert below["static_chunks"] >= 1 and len(below["frames"]) >= 100  # the cloth, every 10th step
+    assert any("color" in c.lower() for c in below["components"])
+    assert len(info["/stage1/symplectic_0.9x/energy/total"]["frames"]) > 1000  # every step
+    for run in ("symplectic_1.1x", "symplectic_1.1x_opposite_seed"):
+        events = info[f"/stage1/{run}/events"]
+        assert events["rows"] == 1  # the blow-up, marked at its step
+        assert events["frames"][0] == info[f"/stage1/{run}/mesh"]["frames"][-1]
+    for run in ("backward_euler_10x", "backward_euler_100x"):
+        assert len(info[f"/stage1/{run}/mesh"]["frames"]) >= 10
+    assert "/stage2/mode0_wdt1/mesh" in info
+    assert "/stage3/timings" in info and "/stage3/narrative" in info
+    assert path.stat().st_size < 50e6
+
+
+def test_symplectic_euler_growth_and_crossover_helpers():
+    assert symplectic_euler_growth(4 * 1.21) == pytest.approx(2.428166652890285, rel=1e-12)
+    assert symplectic_euler_growth(3.99) == 1.0 and symplectic_euler_growth(0.5) == 1.0
+    lam = symplectic_euler_growth(9.0)  # lambda^2 - (2 - z) lambda + 1 = 0 with z = 9: lambda = (-7 - sqrt 45)/2
+    assert lam == pytest.approx((7 + math.sqrt(45)) / 2, rel=1e-14)
+    assert _crossover([1, 10, 100], [1, 2, 4], [3, 2.5, 2]) == pytest.approx(10 * 10 ** (math.log(2.5 / 2) / (
+        math.log(2.5 / 2) + math.log(4 / 2))), rel=1e-12)
+    assert _crossover([1, 10], [1, 2], [3, 4]) is None
+
+
+def test_config_validation():
+    with pytest.raises(ParameterError, match="--huge must be larger than --big"):
+        validate_config(ExplicitImplicitConfig(big=50.0, huge=20.0))
+    with pytest.raises(ParameterError, match="--E-stiff must be larger than --E-soft"):
+        validate_config(ExplicitImplicitConfig(E_soft=1e4, E_stiff=1e3))
+    with pytest.raises(ParameterError, match="--below"):
+        validate_config(ExplicitImplicitConfig(below=1.0))
+    validate_config(ExplicitImplicitConfig())
