@@ -353,6 +353,10 @@ class Model:
         v = np.zeros((self.n, 3)) if v is None else np.array(v, dtype=np.float64)
         if x.shape != (self.n, 3) or v.shape != (self.n, 3):
             raise ModelError(f"state arrays must have shape ({self.n}, 3), got x {x.shape}, v {v.shape}")
+        for what, a in (("positions", x), ("velocities", v)):
+            bad = np.flatnonzero(~np.isfinite(a).all(axis=1))
+            if bad.size:  # a simulation started from it would only blow up at its first step
+                raise ModelError(f"initial {what}: vertex {bad[0]} is not finite ({a[bad[0]].tolist()})")
         v[self.pinned] = 0.0
         return State.from_numpy(x, v, t)
 

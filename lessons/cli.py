@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -26,9 +27,23 @@ class UsageError(Exception):
     """Bad command-line input: reported as one line, exit code 2."""
 
 
+# What argparse takes for a (negative) number rather than an option: by default only -1 and
+# -1.5, so "--E -1e-3" or "--E -inf" would be reported as a missing value instead of a bad one.
+_NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-(inf|infinity|nan)$", re.IGNORECASE)
+
+
 class _Parser(argparse.ArgumentParser):
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = _NEGATIVE_NUMBER
+
     def error(self, message):  # one line instead of argparse's usage + error
+        # "argument --E: --E must be ..." -> "--E must be ..."
+        message = re.sub(r"^argument (-[\w-]+): (?=\1 )", "", message)
         raise UsageError(f"{message} (see '{self.prog} --help')")
+
+
+_CONTROL = re.compile("[\x00-\x1f\x7f-\x9f\u2028\u2029]")  # would break the one-line error message
 
 
 class _Terminated(BaseException):
@@ -142,7 +157,11 @@ def _check_output(flag: str, path: Path) -> None:
 
 def _check_results_path(path: Path) -> None:
     parent = path.parent if str(path.parent) else Path(".")
-    if path.is_dir() or not parent.is_dir() or not os.access(parent, os.W_OK):
+    try:
+        ok = not path.is_dir() and parent.is_dir() and os.access(parent, os.W_OK)
+    except OSError as exc:  # e.g. a name too long for the file system
+        raise UsageError(f"--results {path}: cannot write there ({exc.strerror or exc})") from None
+    if not ok:
         raise UsageError(f"--results {path}: cannot write there (the directory must exist and be writable)")
 
 
@@ -163,11 +182,38 @@ def _view(path: Path | None, out) -> None:
         print(f"--view: cannot start the Rerun viewer ({exc}); open it later with: rerun {path}", file=out)
 
 
-def run(argv: list[str], out=sys.stdout, err=sys.stderr) -> int:
+def _lesson_token(argv: list[str], lessons_) -> str | None:
+    """The LESSON argument: the first token that is neither an option nor an option's value, so
+    that options may come first (``run --stage 2 rod-waves``). Mirrors argparse: a value follows
+    an option that takes one (spelled out or abbreviated) unless it looks like an option."""
+    parsers = [_run_parser([], None)] + [_run_parser([], l) for l in lessons_]
+    actions = [a for p in parsers for a in p._actions]
+    options = {s for a in actions for s in a.option_strings}
+    takes_value = {s for a in actions if a.nargs is None for s in a.option_strings}
+    expect_value = False
+    for i, tok in enumerate(argv):
+        if tok == "--":
+            return argv[i + 1] if i + 1 < len(argv) else None
+        is_option = tok.startswith("-") and len(tok) > 1 and not _NEGATIVE_NUMBER.match(tok)
+        if expect_value and not is_option:
+            expect_value = False
+            continue
+        expect_value = False
+        if not is_option:
+            return tok
+        if "=" not in tok:
+            spelled = [tok] if tok in options else [o for o in options if tok.startswith("--") and o.startswith(tok)]
+            expect_value = bool(spelled) and all(o in takes_value for o in spelled)
+    return None
+
+
+def run(argv: list[str], out=None, err=None) -> int:
+    out = sys.stdout if out is None else out  # looked up per call (the streams may be redirected)
+    err = sys.stderr if err is None else err
     lessons_ = registry.all_lessons()
     ids = [l.id for l in lessons_]
     by_id = {l.id: l for l in lessons_}
-    lesson_arg = next((a for a in argv if not a.startswith("-")), None)
+    lesson_arg = _lesson_token(argv, lessons_)
     lesson = by_id.get(lesson_arg)
     parser = _run_parser(ids, lesson)
     if lesson_arg is None and not any(a in ("-h", "--help") for a in argv):
@@ -205,12 +251,12 @@ def run(argv: list[str], out=sys.stdout, err=sys.stderr) -> int:
     except runtime.RuntimeConfigError as exc:
         raise UsageError(str(exc)) from None
 
+    if args.results:  # before --record, whose check creates missing directories
+        _check_results_path(Path(args.results))
     paths = _record_paths(args, chosen)
     for p in paths.values():
         if p is not None:
             _check_output("--record", p)
-    if args.results:
-        _check_results_path(Path(args.results))
 
     results: list[dict] = []
     all_passed = True
@@ -257,9 +303,11 @@ def main(argv: list[str] | None = None) -> int:
     try:
         lessons_ = registry.all_lessons()
         ids = [l.id for l in lessons_]
-        if not argv or argv[0] in ("-h", "--help"):
+        if not argv:
+            raise UsageError("a command is required: list or run (see 'python -m lessons --help')")
+        if argv[0] in ("-h", "--help"):
             _main_parser(ids).print_help()
-            return EXIT_OK if argv else EXIT_USAGE
+            return EXIT_OK
         command, rest = argv[0], argv[1:]
         if command == "list":
             if rest:
@@ -270,8 +318,9 @@ def main(argv: list[str] | None = None) -> int:
         raise UsageError(f"command must be 'list' or 'run' (got {command!r}); see 'python -m lessons --help'")
     except SystemExit as exc:  # --help
         return int(exc.code or 0)
-    except UsageError as exc:
-        print(f"python -m lessons: error: {exc}", file=sys.stderr)
+    except UsageError as exc:  # one line, whatever the user typed (control characters escaped)
+        message = _CONTROL.sub(lambda m: repr(m.group())[1:-1], str(exc))
+        print(f"python -m lessons: error: {message}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:
         print("\ninterrupted: the recording and the results so far were written", file=sys.stderr)
