@@ -25,6 +25,7 @@ callers can skip building colours and arrays altogether.
 """
 from __future__ import annotations
 
+import errno
 import os
 from pathlib import Path
 
@@ -72,12 +73,28 @@ def check_writable(path: str | os.PathLike) -> Path:
     if target.is_dir():
         raise IsADirectoryError(f"{target} is a directory")
     parent = target.parent if str(target.parent) else Path(".")
-    parent.mkdir(parents=True, exist_ok=True)
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise PermissionError(f"directory {parent} is not writable")
-    if target.exists() and not os.access(target, os.W_OK):
-        raise PermissionError(f"{target} exists and is not writable")
-    return target.resolve()
+    missing = []  # directories this call creates, removed again if the path turns out unusable
+    p = parent
+    while not p.exists() and p != p.parent:
+        missing.append(p)
+        p = p.parent
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        if not os.access(parent, os.W_OK | os.X_OK):
+            raise PermissionError(f"directory {parent} is not writable")
+        if target.exists() and not os.access(target, os.W_OK):
+            raise PermissionError(f"{target} exists and is not writable")
+        name_max = os.pathconf(parent, "PC_NAME_MAX")
+        if len(os.fsencode(target.name)) > name_max:
+            raise OSError(errno.ENAMETOOLONG, os.strerror(errno.ENAMETOOLONG), str(target))
+        return target.resolve()
+    except OSError:
+        for d in missing:  # innermost first
+            try:
+                d.rmdir()
+            except OSError:
+                pass
+        raise
 
 
 def lesson_blueprint(stages: list[tuple[int, str]], view: str = "3d") -> rrb.Blueprint:

@@ -44,8 +44,9 @@ def range_text(meta: dict) -> str:
     """Human-readable valid range of a field, e.g. '> 0', 'in [3, 100000]'."""
     if meta.get("choices"):
         return "one of " + ", ".join(map(str, meta["choices"]))
-    lo = ("> %s" % meta["gt"]) if meta.get("gt") is not None else ("≥ %s" % meta["ge"]) if meta.get("ge") is not None else None
-    hi = ("< %s" % meta["lt"]) if meta.get("lt") is not None else ("≤ %s" % meta["le"]) if meta.get("le") is not None else None
+    num = lambda v: f"{v:g}" if isinstance(v, float) else str(v)
+    lo = ("> " + num(meta["gt"])) if meta.get("gt") is not None else ("≥ " + num(meta["ge"])) if meta.get("ge") is not None else None
+    hi = ("< " + num(meta["lt"])) if meta.get("lt") is not None else ("≤ " + num(meta["le"])) if meta.get("le") is not None else None
     if lo and hi:
         return f"{lo} and {hi}"
     return lo or hi or "any value"

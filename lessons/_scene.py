@@ -86,11 +86,13 @@ def simulate(ctx, name: str, model, state, dt: float, n_steps: int, integrator="
                         integ.advance(model, state, h)
                     else:
                         integ.step(model, state, h, 1)
-            except SolverError as err:
-                fail(s, math.nan, BlowUpError(
-                    f"{integ.name} failed at step {s - 1} (t={state.t:.4g} s): {err}; likely cause: the linear "
-                    f"solver did not converge (raise --tol, allow more iterations, or use --solver cholesky)",
-                    step=s - 1, time=state.t, energy=math.nan, dt=dt, dt_stable=math.inf, integrator=integ.name))
+            except SolverError as err:  # the integrator left the state at the last good step
+                E = diagnostics.kinetic_energy(model, state) + model.potential_energy(state.x)
+                fail(s, E, BlowUpError(
+                    f"{integ.name} failed at step {s - 1} (t={state.t:.4g} s, total energy {E:.4g} J at the last "
+                    f"good step): {err}; likely cause: the linear solver did not converge (raise --tol, allow more "
+                    f"iterations, or use --solver cholesky)",
+                    step=s - 1, time=state.t, energy=E, dt=dt, dt_stable=math.inf, integrator=integ.name))
             if s % energy_every == 0 or s == n_steps:
                 K = diagnostics.kinetic_energy(model, state)
                 W = model.potential_energy(state.x)

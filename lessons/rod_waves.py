@@ -27,8 +27,8 @@ from ._scene import run_chunked
 
 @dataclass
 class RodWavesConfig:
-    E: float = param(1.0, "Young's modulus of the rod (1D: force per unit strain)", "N", gt=0)
-    rho: float = param(1.0, "linear density of the rod", "kg/m", gt=0)
+    E: float = param(1.0, "Young's modulus of the rod (1D: force per unit strain)", "N", ge=1e-6, le=1e12)
+    rho: float = param(1.0, "linear density of the rod", "kg/m", ge=1e-6, le=1e6)
     nodes: int = param(1001, "nodes on the rod of rest length 1 m (h = 1/(nodes-1))", ge=101, le=200001)
     cfl: float = param(0.5, "CFL number nu = c dt / h for runs that do not sweep it", gt=0, le=1000)
     width: float = param(10.0, "Gaussian pulse width sigma, in node spacings", ge=2, le=100)

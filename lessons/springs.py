@@ -53,7 +53,7 @@ class SpringsConfig:
                                 le=20000)
     E: float = param(100.0, "stages 4-5: Young's modulus of the rod/chain (1D: force per unit strain)", "N",
                      gt=0, le=1e9)
-    rho: float = param(1.0, "stages 4-5: linear density", "kg/m", gt=0, le=1e6)
+    rho: float = param(1.0, "stages 4-5: linear density", "kg/m", ge=1e-6, le=1e6)
     hang_nodes: int = param(41, "stage 5: nodes of the hanging rod (1 m)", ge=3, le=5000)
     record_every: int = param(1000, "stage 2: log the spring network every k-th step", ge=1)
 

@@ -235,8 +235,6 @@ def test_backward_euler_that_never_converges_fails_at_step_0():
     assert rec.marks and rec.marks[0][0] == 1 and rec.geometry_frames == [0, 1]
 
 
-@pytest.mark.xfail(strict=True, reason="lessons/_scene.simulate reports a solver failure with energy=nan and no "
-                                       "energy in the message; needs the energy of the last good state there")
 def test_backward_euler_failure_message_gives_the_energy():
     model, X, v0 = spring_sheet()
     integ = make_integrator("backward-euler", solver="pcg", tol=1e-14, max_iter=2)
