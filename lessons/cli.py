@@ -328,5 +328,16 @@ def main(argv: list[str] | None = None) -> int:
     except _Terminated:
         print("\nterminated: the recording and the results so far were written", file=sys.stderr)
         return EXIT_TERM
+    except Exception as exc:  # a bug, not bad input: one line, the work so far kept, exit 1
+        if os.environ.get("ELASTIC_DEBUG"):
+            raise
+        where = exc.__traceback__
+        while where is not None and where.tb_next is not None:
+            where = where.tb_next
+        loc = f" at {Path(where.tb_frame.f_code.co_filename).name}:{where.tb_lineno}" if where else ""
+        print(f"python -m lessons: internal error{loc}: {type(exc).__name__}: {exc} (the recording and the "
+              f"results so far were written; set ELASTIC_DEBUG=1 for the traceback, and please report it)",
+              file=sys.stderr)
+        return EXIT_FAILED
     finally:
         signal.signal(signal.SIGTERM, previous)

@@ -115,3 +115,21 @@ def test_view_without_display_says_so(tmp_path):
     assert r.returncode == 0
     assert "cannot start the Rerun viewer: no display" in r.stdout
     assert "rerun " in r.stdout
+
+
+def test_an_internal_error_is_one_line_and_exit_1(tmp_path, monkeypatch, capsys):
+    import lessons.cli as cli_mod
+
+    def boom(*args, **kwargs):
+        raise ZeroDivisionError("float division by zero")
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("ELASTIC_DEBUG", raising=False)
+    monkeypatch.setattr(cli_mod, "run_lesson", boom)
+    assert cli_mod.main(["run", "rod-waves", "--stage", "1", "--no-record"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "internal error" in err[0] and "ZeroDivisionError" in err[0]
+    assert "ELASTIC_DEBUG=1" in err[0]
+    monkeypatch.setenv("ELASTIC_DEBUG", "1")
+    with pytest.raises(ZeroDivisionError):
+        cli_mod.main(["run", "rod-waves", "--stage", "1", "--no-record"])
