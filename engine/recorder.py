@@ -78,6 +78,8 @@ def check_writable(path: str | os.PathLike) -> Path:
     while not p.exists() and p != p.parent:
         missing.append(p)
         p = p.parent
+    if not p.is_dir():
+        raise NotADirectoryError(errno.ENOTDIR, f"{p} is a file, not a directory", str(parent))
     try:
         parent.mkdir(parents=True, exist_ok=True)
         if not os.access(parent, os.W_OK | os.X_OK):

@@ -59,7 +59,7 @@ def test_failed_experiment_gives_exit_1_and_is_in_results(tmp_path):
     (["run", "rod-waves", "--nodes", "2"], "--nodes must be ≥ 101"),
     (["run", "rod-waves", "--nodes", "abc"], "--nodes must be an integer"),
     (["run", "rod-waves", "--stage", "9"], "--stage must be in 1..4"),
-    (["run", "rod-waves", "--record", "blocker/sub/x.rrd"], "--record blocker/sub/x.rrd: cannot write there"),
+    (["run", "rod-waves", "--record", "blocker/sub/x.rrd"], "--record blocker/sub/x.rrd: cannot write there (blocker is a file, not a directory)"),
     (["run", "rod-waves", "--record", "new/" + "b" * 300 + ".rrd"], "cannot write there (File name too long)"),
     (["run", "rod-waves", "--threads", "0"], "--threads must be an integer in 1..256"),
     (["run", "rod-waves", "--arch", "tpu"], "--arch must be one of cpu, cuda, vulkan"),
