@@ -9,6 +9,7 @@ Christoffel equation).
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -27,6 +28,10 @@ from ._scene import edge_strain, simulate, vertex_strain
 RUN_PERIODS = 0.3   # each standing-wave run lasts this fraction of a period (phase 0 -> 1.9 rad)
 BOX_LENGTH = 1.0    # m, the tet box of stage 1 and the cell size unit of stage 4
 SMALL_JITTER = 0.1  # a mild jitter whose affine prediction is still close
+BE_PHASE_STEP = 0.05  # w dt of the backward-Euler runs: phase lag 1 - arctan(w dt)/(w dt) = 8.3e-4
+BE_PHASE_LAG = 1e-3   # the bound on that lag, a tenth of the tightest tolerance (1e-2) of the speeds
+BE_DAMPING_TOL = 0.03  # fitted / predicted decay rate: the decay over a run is only ~5%, and the probe
+                       # also sees a little of other motion (up to 1.7% measured on the regular meshes)
 
 
 @dataclass
@@ -65,16 +70,23 @@ def bulk_tensor(mesh: M.Mesh, c: np.ndarray, h: float) -> np.ndarray:
 
 
 def standing_wave(ctx, name: str, model: Model, mass: np.ndarray, direction, polarization, k: float,
-                  origin, region: np.ndarray, c_guess: float, draw=None) -> float:
+                  origin, region: np.ndarray, c_guess: float, draw=None, fits: list | None = None) -> float:
     """Start u = A cos(k (X - origin).n) p from rest, run RUN_PERIODS of a period (sized with
-    ``c_guess``; the measurement does not use it) with velocity Verlet, and return the
-    measured phase speed w/k from the amplitude over ``region`` (engine.waves)."""
+    ``c_guess``; the measurement does not use it) with velocity Verlet (or the integrator of
+    ``--integrator``), and return the measured phase speed w/k from the amplitude over ``region``
+    (engine.waves).
+
+    Under backward Euler (stable at any step) the step is BE_PHASE_STEP/(k c_guess), whatever the
+    CFL limit, so that the scheme's phase lag 1 - arctan(w dt)/(w dt) is the same 8e-4 in every
+    run, and the amplitude, which the scheme damps, is fitted as a(0) exp(-gamma t) cos(w t); the
+    fit (dt, w, gamma) is appended to ``fits``."""
     cfg = ctx.cfg
     X = model.X
     probe = ModeProbe(X, mass, direction, polarization, k, origin, region)
     A = cfg.strain / k  # peak strain k A
     state = model.make_state(X + probe.displacement(A))
-    dt = cfg.cfl * stable_dt_estimate(model)
+    implicit = ctx.integrator_name("velocity-verlet") == "backward-euler"
+    dt = BE_PHASE_STEP / (k * c_guess) if implicit else cfg.cfl * stable_dt_estimate(model)
     n_steps = max(8, int(math.ceil(RUN_PERIODS * 2 * math.pi / (k * c_guess) / dt)))
     times, amps = [], []
 
@@ -92,9 +104,70 @@ def standing_wave(ctx, name: str, model: Model, mass: np.ndarray, direction, pol
                 draw(rec, st.x.to_numpy().astype(np.float64), A)
 
     W0 = model.potential_energy(state.x)
-    simulate(ctx, name, model, state, dt, n_steps, integrator="velocity-verlet", every=1,
-             energy_bound=10 * W0, observe=observe, log=log, energy_every=4)
-    return phase_frequency(np.asarray(times), np.asarray(amps)) / k
+    stepping = ctx.stepping
+    if implicit and stepping.solver == "cholesky" and np.ptp(X[:, 2]) > 0:
+        # a direct LL^T of a 3D lattice fills in far more than a sheet's: Eigen's simplicial
+        # factorisation (one per step) takes ~1 s for the smallest box here (3249 vertices) and
+        # ~40 s at 10^4; the boxes go up to 107217 vertices
+        ctx.progress(f"{name}: --solver cholesky is impractical for this 3D box ({model.n} vertices; a direct "
+                     f"LL^T of a 3D lattice fills in: ~1 s per step at 3249 vertices, ~40 s at 10^4): this run "
+                     f"uses pcg")
+        ctx.stepping = dataclasses.replace(stepping, solver="pcg")
+    try:
+        simulate(ctx, name, model, state, dt, n_steps, integrator="velocity-verlet", every=1,
+                 energy_bound=10 * W0, observe=observe, log=log, energy_every=4)
+    finally:
+        ctx.stepping = stepping
+    if not implicit:
+        return phase_frequency(np.asarray(times), np.asarray(amps)) / k
+    w, gamma = damped_frequency(np.asarray(times), np.asarray(amps))
+    if fits is not None:
+        fits.append(dict(name=name, dt=dt, w=w, gamma=gamma))
+    ctx.progress(f"{name}: backward Euler, dt = {dt:.4g} s (w dt = {w * dt:.4f}), fitted damping "
+                 f"{gamma:.4g} 1/s, the scheme's {be_damping_rate(w, dt):.4g} 1/s")
+    return w / k
+
+
+def damped_frequency(t: np.ndarray, a: np.ndarray) -> tuple[float, float]:
+    """(w, gamma) of a(t) = a(0) exp(-gamma t) cos(w t), least squares over all samples (a run
+    from rest stepped by backward Euler has exactly this form for each normal mode)."""
+    from scipy.optimize import least_squares
+
+    r = a / a[0]
+    w0 = phase_frequency(t, a)  # a start, biased by the decay
+
+    def resid(p):
+        return np.exp(-p[1] * t) * np.cos(p[0] * t) - r
+
+    sol = least_squares(resid, [w0, 0.0], x_scale=[w0, w0], xtol=1e-14, ftol=1e-14, gtol=1e-14)
+    return float(sol.x[0]), float(sol.x[1])
+
+
+def be_damping_rate(w: float, dt: float) -> float:
+    """Backward Euler on an oscillator whose scheme frequency is w (phase arctan(W dt) = w dt per
+    step, W the true frequency): amplitude factor 1/sqrt(1 + (W dt)^2) = cos(w dt) per step, i.e.
+    the decay rate -ln(cos(w dt))/dt."""
+    return -math.log(math.cos(w * dt)) / dt
+
+
+def be_experiments(ctx, fits: list, jittered: list = ()) -> list:
+    """Under backward Euler (``fits`` not empty): the fitted damping of the runs on regular meshes
+    (``fits``) against the scheme's own, and the largest phase lag of all runs."""
+    if not fits:
+        return []
+    ratios = [f["gamma"] / be_damping_rate(f["w"], f["dt"]) for f in fits]
+    worst = max(ratios, key=lambda q: abs(q - 1))
+    every = list(fits) + list(jittered)
+    phase = max(1 - f["w"] * f["dt"] / math.tan(f["w"] * f["dt"]) for f in every)
+    ctx.progress(f"backward Euler: fitted damping / the scheme's on the regular meshes: "
+                 + ", ".join(f"{q:.4f}" for q in ratios) + "; largest phase lag 1 - arctan(W dt)/(W dt) = "
+                 f"{phase:.2e} ({len(every)} runs)")
+    return [
+        Experiment(f"backward Euler damps each wave by 1/sqrt(1 + (W dt)^2) per step: fitted / scheme's decay "
+                   f"rate (worst of {len(fits)} runs)", 1.0, worst, BE_DAMPING_TOL),
+        Experiment(f"backward Euler's phase lag 1 - arctan(W dt)/(W dt) at the chosen dt (largest of {len(every)})",
+                   BE_PHASE_LAG, phase, 0, "<="),
+    ]
 
 
 def _colors(strain, scale):
@@ -171,6 +244,24 @@ the box is wide enough that nothing from its sides reaches the centre line, wher
 amplitude is read, during the run (0.3 of a period). Velocity Verlet is used because,
 started from rest, its samples are symmetric about t = 0, so the phase fit has no half-step
 offset. The constant k is tuned on the coarsest box so that both laws agree there.
+
+Every standing-wave run of this lesson is a scene run: --integrator replaces velocity Verlet
+(no run is fixed; stage 5 is static and has no time step). Symplectic Euler advances the phase
+exactly as Verlet does (sin(w dt/2) = W dt/2 for a mode of true frequency W: the speed comes out
+high by (W dt)^2/24, at most about 1e-3 here); started from rest its samples are shifted by
+half a step, which the phase fit, leaving out the first samples (a/a(0) > 0.97), barely sees.
+Forward Euler feeds energy into every oscillation and is stopped by the energy check. Backward
+Euler is stable at any step, but per step it turns the phase of a mode by only arctan(W dt) and
+multiplies its amplitude by 1/sqrt(1 + (W dt)^2): a wave is slowed by arctan(W dt)/(W dt) and
+damped. Under it we therefore choose the step from the phase, not from the CFL limit: W dt = 0.05
+with W = k times the predicted speed, so the slowdown is 8.3e-4 in every run, below a tenth of
+the tightest tolerance (1e-2) and the same in every run, so it cancels from the speed ratios.
+The amplitude is then fitted as a(0) exp(-gamma t) cos(w t), and each wave stage adds two
+experiments on the scheme itself: gamma against the scheme's own decay rate -ln(cos(w dt))/dt
+(the amplitude factor per step is the cosine of the phase step; within 3%), and the bound on
+the phase lag. With --solver cholesky the 3D boxes (stages 1 and 4) use pcg instead: a direct
+factorisation of a 3D lattice, one per step, takes about a second at 3249 vertices and far
+longer on the larger boxes; the stage's integrators line shows what ran.
 """
 
 
@@ -179,6 +270,7 @@ def stage_refinement(ctx):
     levels = [cfg.box_cells * 2 ** i for i in range(3)]
     k = math.pi / BOX_LENGTH
     speeds = {"area": [], "k": []}
+    fits = []
     k_spring = None
     for level, nc in enumerate(levels):
         h = BOX_LENGTH / nc
@@ -205,7 +297,7 @@ def stage_refinement(ctx):
             speeds_th, pol = christoffel(C, [1, 0, 0], cfg.rho)
             model = Model.from_springs(X, mesh.edges, c=coef(mesh), mass=mass)
             c = standing_wave(ctx, f"{law}_h{nc}", model, mass, [1, 0, 0], pol[:, -1], k, (0.0, 0.0, 0.0),
-                              band, speeds_th[-1], draw)
+                              band, speeds_th[-1], draw, fits)
             speeds[law].append(c)
             ctx.progress(f"  {law:4s}: measured {c:.5f} m/s, Cauchy-Born {speeds_th[-1]:.5f} m/s")
     a, kk = speeds["area"], speeds["k"]
@@ -215,7 +307,7 @@ def stage_refinement(ctx):
         Experiment("k tuned on the coarse box: same speed as E*A springs there", 1.0, kk[0] / a[0], 1e-2),
         Experiment("volume-scaled springs: speed ratio c(h/2)/c(h) = 1", 1.0, a[1] / a[0], 1e-2),
         Experiment("volume-scaled springs: speed ratio c(h/4)/c(h) = 1", 1.0, a[2] / a[0], 1e-2),
-    ]
+    ] + be_experiments(ctx, fits)
 
 
 # ---------------------------------------------------------------------------- stage 2
@@ -270,12 +362,12 @@ def stage_equilateral(ctx):
     ctr = 0.5 * (V.min(axis=0) + V.max(axis=0))
     region = np.linalg.norm(V - ctr, axis=1) <= r
     draw = sheet_drawer(m3, 1.0, k)
-    out = {}
+    out, fits = {}, []
     for label, d in (("x", [1.0, 0.0]), ("y", [0.0, 1.0])):
         n = _unit(d)
         for wave, p, guess in (("P", n, cP), ("S", np.array([-n[1], n[0]]), cS)):
             out[wave, label] = standing_wave(ctx, f"{wave}_along_{label}", model, mass, n, p, k, ctr, region,
-                                             guess, draw if label == "x" else None)
+                                             guess, draw if label == "x" else None, fits)
             ctx.progress(f"{wave} along {label}: {out[wave, label]:.5f} m/s")
     ratio = 0.5 * (out["P", "x"] / out["S", "x"] + out["P", "y"] / out["S", "y"])
     return [
@@ -285,7 +377,7 @@ def stage_equilateral(ctx):
         Experiment("S wave along y = sqrt(1/8) c0", cS, out["S", "y"], 2e-2, "rel", "m/s"),
         Experiment("c_P/c_S = sqrt(3), i.e. lambda = mu (Cauchy relation)", math.sqrt(3), ratio, 1e-2),
         Experiment("isotropy: P speed along y / along x = 1", 1.0, out["P", "y"] / out["P", "x"], 1e-2),
-    ]
+    ] + be_experiments(ctx, fits)
 
 
 # ---------------------------------------------------------------------------- stage 3
@@ -317,7 +409,11 @@ strain is not in equilibrium, the vertices relax and the sheet is softer than th
 affine sum is an upper bound, close for mild jitter (0.1) and a few per cent high for strong
 jitter (0.25). We also compute the relaxed stiffness: the boundary vertices follow a uniform
 strain, the interior settles into equilibrium (a sparse linear solve, with scipy, of the
-engine's rest Hessian), and the energy density in the measuring disc gives C.
+engine's rest Hessian), and the energy density in the measuring disc gives C. (Under backward
+Euler the damping check leaves the jittered meshes out: their affine start is not a normal
+mode, it also sets off the fast non-affine relaxation of the vertices, which the scheme damps
+much harder, so the fitted decay comes out 2-20% above the single-mode rate; the speeds are
+not affected.)
 
 So: area scaling fixes resolution dependence for a given pattern. It does not fix pattern
 dependence (anisotropy, different speeds for the same E), and no choice of E or pattern frees
@@ -337,7 +433,7 @@ def stage_patterns(ctx):
     exps = []
     half = r + RUN_PERIODS * lam * math.sqrt(3) * 1.05 + 2.0  # the slowest wave here is 1/sqrt(3) of the fastest
     n = square_domain_cells(half, 1.0) + 1
-    measured = {}
+    measured, fits = {}, []
     for pattern in ("one-way", "alternating", "crossed"):
         m2 = M.right_triangle_grid(n, n, n - 1.0, n - 1.0, pattern)
         m3 = M.embed_3d(m2)
@@ -349,7 +445,7 @@ def stage_patterns(ctx):
             speeds, pol = christoffel(C, d, cfg.rho)
             draw = sheet_drawer(m3, 1.0, k) if label == "x" else None
             v = standing_wave(ctx, f"{pattern}_{label}", model, mass, _unit(d), pol[:, -1], k, ctr, region,
-                              speeds[-1], draw)
+                              speeds[-1], draw, fits)
             measured[pattern, label] = (v, speeds[-1])
             ctx.progress(f"{pattern}, P along {label}: measured {v:.5f}, Cauchy-Born {speeds[-1]:.5f} m/s")
             exps.append(Experiment(f"{pattern} grid: P wave along {label} = Cauchy-Born ({speeds[-1] / c0:.4f} c0)",
@@ -357,11 +453,12 @@ def stage_patterns(ctx):
     v1, t1 = measured["one-way", "diagonal (1,1)"]
     v2, t2 = measured["one-way", "diagonal (1,-1)"]
     exps.append(Experiment("one-way grid is anisotropic: speed along / across its diagonals", t1 / t2, v1 / v2, 2e-2))
-    exps += _jitter_experiments(ctx, n, k, lam)
-    return exps
+    jittered = []
+    exps += _jitter_experiments(ctx, n, k, lam, jittered)
+    return exps + be_experiments(ctx, fits, jittered)
 
 
-def _jitter_experiments(ctx, n, k, lam):
+def _jitter_experiments(ctx, n, k, lam, fits):
     cfg = ctx.cfg
     base = M.right_triangle_grid(n, n, n - 1.0, n - 1.0, "one-way")
     ctr = np.full(2, 0.5 * (n - 1))
@@ -383,7 +480,7 @@ def _jitter_experiments(ctx, n, k, lam):
             s_rel, pol = christoffel(C_relaxed, d, rho_eff)
             first = amp == cfg.jitter and seed == 0 and label == "x"
             v = standing_wave(ctx, f"jitter{amp:g}_seed{seed}_{label}", model, mass, d, pol[:, -1], k, ctr,
-                              region, s_rel[-1], sheet_drawer(m3, 1.0, k) if first else None)
+                              region, s_rel[-1], sheet_drawer(m3, 1.0, k) if first else None, fits)
             ctx.progress(f"jitter {amp:g} seed {seed}, P along {label}: measured {v:.5f}, relaxed {s_rel[-1]:.5f}, "
                          f"affine Cauchy-Born {s_aff[-1]:.5f} m/s ({v / s_aff[-1] - 1:+.2%})")
             if amp == cfg.jitter:
@@ -438,7 +535,7 @@ def stage_tet_box(ctx):
     C_unit = bulk_tensor(probe_mesh, cfg.E * probe_mesh.edge_measure, 1.0)  # the same for every h
     cmax = max_speed(C_unit, cfg.rho)
     runs = [("(1,1,1)", [1, 1, 1], 1), ("(1,1,1)", [1, 1, 1], 2), ("(1,1,-1)", [1, 1, -1], 1), ("x", [1, 0, 0], 1)]
-    out = {}
+    out, fits = {}, []
     for refine in (1, 2):
         h = h0 / refine
         todo = [(label, d) for label, d, rf in runs if rf == refine]
@@ -454,7 +551,7 @@ def stage_tet_box(ctx):
         for label, d in todo:
             speeds, pol = christoffel(C_unit, d, cfg.rho)
             v = standing_wave(ctx, f"P_{label}_h{refine}", model, mass, _unit(d), pol[:, -1], k, ctr, region,
-                              speeds[-1], draw if label == "(1,1,1)" else None)
+                              speeds[-1], draw if label == "(1,1,1)" else None, fits)
             out[label, refine] = (v, speeds[-1])
             ctx.progress(f"  P along {label}: measured {v:.5f}, Cauchy-Born {speeds[-1]:.5f} m/s")
     (a1, t1), (a2, _), (b1, tb), (x1, tx) = (out["(1,1,1)", 1], out["(1,1,1)", 2], out["(1,1,-1)", 1], out["x", 1])
@@ -467,7 +564,7 @@ def stage_tet_box(ctx):
         Experiment("tet box: quasi-P along (1,1,-1) = Cauchy-Born", tb, b1, 2e-2, "rel", "m/s"),
         Experiment("tet box: quasi-P along x = Cauchy-Born", tx, x1, 2e-2, "rel", "m/s"),
         Experiment("tet box is anisotropic: speed (1,1,1) / (1,1,-1)", t1 / tb, a1 / b1, 2e-2),
-    ]
+    ] + be_experiments(ctx, fits)
 
 
 # ---------------------------------------------------------------------------- stage 5

@@ -16,7 +16,7 @@ from engine.model import Model, vec3_ndarray
 from engine.waves import (ModeProbe, cauchy_born_tensor, christoffel, max_speed, phase_frequency,
                           relaxed_stiffness_2d, young_poisson)
 from lessons._framework import validate_config
-from lessons.area_springs import LESSON, AreaSpringsConfig, bulk_tensor
+from lessons.area_springs import LESSON, AreaSpringsConfig, be_damping_rate, bulk_tensor, damped_frequency
 from tests.helpers import assert_all_passed, run_stage
 
 
@@ -210,3 +210,65 @@ def test_a_too_short_wavelength_fails_honestly():
     s = run_stage(LESSON, 4, box_wavelength=8)
     e = s["tet box, h: P along (1,1,1) = Cauchy-Born sqrt(10/27) c0"]
     assert not e.passed and e.measured < e.theory
+
+
+# ------------------------------------------------------------ stepping options (--integrator)
+
+BE_PCG = "backward-euler (pcg, tol 1e-08)"
+DAMPING = "backward Euler damps each wave by 1/sqrt(1 + (W dt)^2) per step: fitted / scheme's decay rate"
+PHASE = "backward Euler's phase lag 1 - arctan(W dt)/(W dt) at the chosen dt"
+
+
+@pytest.fixture(scope="module")
+def be_stages():
+    """Every wave stage under --integrator backward-euler, on smaller configurations where they
+    exist (stage 1 with 7-cell coarse boxes, stage 3 with one strong-jitter mesh, stage 4 with
+    16-cell waves and --solver cholesky, which the 3D boxes replace by pcg)."""
+    out = {}
+    for i, stepping, kw in ((1, {}, dict(box_cells=7)), (2, {}, {}), (3, {}, dict(jitter_seeds=1)),
+                            (4, dict(solver="cholesky"), dict(box_wavelength=16))):
+        used = []
+        s = run_stage(LESSON, i, stepping=dict(integrator="backward-euler", **stepping), used=used, **kw)
+        out[i] = s, used
+    return out
+
+
+@pytest.mark.parametrize("stage, runs", [(1, 6), (2, 4), (3, 16), (4, 4)])
+def test_backward_euler_wave_stages_pass_as_scene_runs(be_stages, stage, runs):
+    s, used = be_stages[stage]
+    assert_all_passed(s)
+    assert len(used) == runs and all(u.split(": ", 1)[1] == BE_PCG for u in used)  # scene runs, none [fixed]
+    damping = next(e for claim, e in s.items() if claim.startswith(DAMPING))
+    assert abs(damping.measured - 1) < 3e-2
+    phase = next(e for claim, e in s.items() if claim.startswith(PHASE))
+    assert 7e-4 < phase.measured <= 1e-3  # w dt = 0.05: 1 - arctan(0.05)/0.05 = 8.3e-4
+
+
+def test_backward_euler_keeps_the_continuum_speeds_and_ratios(be_stages):
+    s1 = be_stages[1][0]
+    assert abs(s1["one k for all springs: speed ratio c(h/4)/c(h) = 4 (c ~ 1/h)"].measured / 4 - 1) < 2e-2
+    assert abs(s1["volume-scaled springs: speed ratio c(h/4)/c(h) = 1"].measured - 1) < 1e-2
+    s2 = be_stages[2][0]
+    assert abs(s2["P wave along x (an edge direction) = sqrt(3/8) c0"].measured / math.sqrt(3 / 8) - 1) < 2e-2
+    assert abs(s2["S wave along x = sqrt(mu/rho) = sqrt(1/8) c0"].measured / math.sqrt(1 / 8) - 1) < 2e-2
+
+
+@pytest.mark.parametrize("stage, kw", [(2, {}), (4, dict(box_wavelength=16))])
+def test_symplectic_euler_override_passes_the_wave_stages(stage, kw):
+    used = []
+    s = run_stage(LESSON, stage, stepping=dict(integrator="symplectic-euler"), used=used, **kw)
+    assert_all_passed(s)
+    assert used and all(u.split(": ", 1)[1] == "symplectic-euler" for u in used)
+    assert not any(claim.startswith(DAMPING) for claim in s)
+
+
+def test_damped_frequency_recovers_backward_eulers_own_decay():
+    """Backward Euler from rest on an oscillator of frequency W: a_n = a_0 cos(th)^n cos(n th),
+    th = arctan(W dt), exactly; the fit returns w = th/dt and the decay -ln(cos th)/dt."""
+    W, dt = 0.7, 0.08
+    th = math.atan(W * dt)
+    n = np.arange(40)
+    w, gamma = damped_frequency(n * dt, 2.5 * np.cos(th) ** n * np.cos(n * th))
+    assert w == pytest.approx(th / dt, rel=1e-10)
+    assert gamma == pytest.approx(be_damping_rate(w, dt), rel=1e-8)
+    assert be_damping_rate(w, dt) == pytest.approx(math.log(1 + (W * dt) ** 2) / (2 * dt), rel=1e-12)

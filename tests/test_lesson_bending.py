@@ -175,3 +175,53 @@ def test_cli_lists_the_bending_option(tmp_path):
     assert "--bending NAME" in out and "one of notes, bridson, discrete-shells" in out and "(default: notes)" in out
     r = cli("run", "bending", "--bending", "plates", "--no-record", cwd=tmp_path)
     assert r.returncode == 2 and "--bending must be one of" in r.stderr
+
+
+# ------------------------------------------------------------ stepping options (--integrator)
+
+CLOTH_RUNS = [f"cloth_B{B}" for B in ("0.0003", "0.003", "0.03")]
+
+
+def test_backward_euler_override_runs_the_cloth_falls_and_the_release_as_scene_runs():
+    for stage, runs in ((4, CLOTH_RUNS), (5, ["release"])):
+        used = []
+        s = run_stage(LESSON, stage, stepping=dict(integrator="backward-euler"), used=used)
+        assert_all_passed(s)
+        # scene runs (not [fixed]) that keep their own solver, since --solver was not given
+        assert used == [f"{run}: backward-euler (cholesky, tol 1e-08)" for run in runs]
+    assert s["2 s after the release the shell is back at rest (max |x - X| / R)"].measured < 1e-6
+
+
+def test_explicit_override_substeps_the_release_and_keeps_its_energy():
+    import io
+
+    from engine.recorder import NullRecorder
+    from lessons._framework import StageContext, Stepping
+
+    stream = io.StringIO()  # a softer shell (larger CFL step) keeps the test short: ~30000 -> ~16000 sub-steps
+    ctx = StageContext(LESSON, LESSON.config(shell_E=2.5e3), NullRecorder(), 5, stream=stream,
+                       stepping=Stepping(integrator="velocity-verlet"))
+    s = {e.claim: e for e in LESSON.stages[4].run(ctx)}
+    assert_all_passed(s)
+    assert ctx.integrators_used == ["release: velocity-verlet"]
+    progress = stream.getvalue()
+    assert "release: velocity-verlet needs dt <=" in progress and "sub-steps per step" in progress
+    drift = s["velocity-verlet does not damp: total energy after the release = the push's elastic energy "
+              "(max |E - W0| / W0)"]
+    assert drift.measured < 1e-3  # second order: far inside the 1% of the claim
+    virial = s["velocity-verlet: the shell oscillates about its rest shape: mean kinetic / mean elastic energy = 1 "
+               "(virial theorem)"]
+    assert abs(virial.measured - 1) < 2e-2
+    assert not any("back at rest" in claim for claim in s)  # that claim is backward Euler's damping
+
+
+def test_explicit_override_keeps_the_cloth_falls_fixed_to_backward_euler():
+    used = []
+    assert_all_passed(run_stage(LESSON, 4, stepping=dict(integrator="symplectic-euler"), used=used, cloth_n=11))
+    assert used == [f"{run}: backward-euler (cholesky, tol 1e-08) [fixed]" for run in CLOTH_RUNS]
+
+
+def test_forward_euler_release_is_stopped_at_the_step_with_the_cause():
+    from engine.errors import BlowUpError
+    with pytest.raises(BlowUpError, match=r"forward-euler blew up at step \d+ .*unstable for springs"):
+        run_stage(LESSON, 5, stepping=dict(integrator="forward-euler"), shell_E=2.5e3)
