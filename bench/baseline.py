@@ -1,24 +1,46 @@
-"""The baseline a user would otherwise write: the same cloth step in vectorised numpy.
+"""The baseline a user would otherwise write: the same steps in vectorised numpy and scipy.
 
-Springs: W_e = 1/2 c_e (l/L - 1)^2, forces scattered with ``np.bincount``.
-Bending (notes' energy, W_e = 1/2 k_e (theta - theta_bar)^2): dtheta/dw_a = -n_a/h_a for the wing
-vertices, and the edge vertices take the barycentric combinations that make the four sum to
-zero (Bridson et al. 2003's u1..u4). Symplectic Euler with gravity and pins.
+Cloth (:class:`NumpyCloth`), the scene of :func:`engine.scenes.cloth`:
+
+* Springs: W_e = 1/2 c_e (l/L - 1)^2, forces scattered with ``np.bincount``.
+* Bending (notes' energy, W_e = 1/2 k_e (theta - theta_bar)^2): dtheta/dw_a = -n_a/h_a for the
+  wing vertices, and the edge vertices take the barycentric combinations that make the four sum
+  to zero (Bridson et al. 2003's u1..u4).
+* Explicit: symplectic Euler with gravity and pins.
+* Implicit (:meth:`NumpyCloth.backward_euler`): one Baraff-Witkin step, the same linear system as
+  the engine's backward Euler with one Newton iteration (engine/integrators/implicit.py (N1)):
+
+      (M/dt^2 + H_psd(x_n)) dx = f(x_n) + M g + M v_n/dt,     x+ = x_n + dx,  v+ = dx/dt
+
+  with H_psd the PSD-projected spring blocks (S4) and the Gauss-Newton hinge blocks
+  k_e g_a g_b^T (g = grad theta), assembled with ``scipy.sparse`` (COO -> CSR, pinned
+  degrees of freedom dropped) and solved by ``scipy.sparse.linalg.cg`` with a (scalar) Jacobi
+  preconditioner to the relative residual ``tol`` (||b - A dx|| <= tol ||b||, the engine's (L3)).
+
+Rod (:class:`NumpyRod`), the rod of :class:`engine.rod.Rod`: f_i = E_i s_i - E_{i-1} s_{i-1};
+symplectic Euler vectorised, backward Euler (M + dt^2 K) v+ = M v + dt f(x) with
+``scipy.linalg.solve_banded`` (what one writes for a tridiagonal system).
 
 Used by the benchmarks (timed against the Taichi engine in the same run) and by their
 correctness checks (the two must agree on the same input).
 """
+import time
+
 import numpy as np
+import scipy.linalg
+import scipy.sparse
+import scipy.sparse.linalg
 
 
 class NumpyCloth:
     """The cloth of :func:`engine.scenes.cloth` (any Model with springs and optional
-    notes-variant bending), stepped in numpy."""
+    notes-variant bending), stepped in numpy (explicit) and numpy + scipy.sparse (implicit)."""
 
     def __init__(self, model, springs, bending=None):
         self.n = model.n
         self.inv_mass = np.where(model.pinned, 0.0, 1.0 / model.mass)
         self.free = (~model.pinned)[:, None]
+        self.pinned = np.asarray(model.pinned, dtype=bool)
         self.mass = np.asarray(model.mass, dtype=np.float64)
         self.g = np.asarray(model.gravity, dtype=np.float64)
         self.i, self.j = springs.edges_np[:, 0], springs.edges_np[:, 1]
@@ -28,11 +50,41 @@ class NumpyCloth:
             if bending.variant != "notes":
                 raise ValueError("the numpy baseline implements the notes' bending energy only")
             self.H, self.k, self.theta_bar = bending.hinges_np, bending.k, bending.theta_bar
+        # degree-of-freedom numbering with the pinned vertices eliminated (-1)
+        free_dof = np.repeat(~self.pinned, 3)
+        self.dof = np.full(3 * self.n, -1, dtype=np.int64)
+        self.dof[free_dof] = np.arange(int(free_dof.sum()))
+        self.n_free_dofs = int(free_dof.sum())
+        self.last_assembly_s = self.last_solve_s = 0.0
+        self.last_iterations = 0
+        self.last_residual = 0.0
+
     def _scatter(self, idx, vec, out):
         for a in range(3):
             out[:, a] += np.bincount(idx, weights=vec[:, a], minlength=self.n)
 
+    def _hinge_terms(self, x):
+        """theta (h,) and the gradients dtheta/dx for the slots (v0, v1, w0, w1), each (h, 3)."""
+        v0, v1, w0, w1 = (x[self.H[:, a]] for a in range(4))
+        e = v1 - v0
+        el2 = np.einsum("ij,ij->i", e, e)
+        el = np.sqrt(el2)
+        N0 = np.cross(e, w0 - v0)        # normal of (v0, v1, w0)
+        N1 = np.cross(-e, w1 - v1)       # normal of (v1, v0, w1)
+        A0 = np.linalg.norm(N0, axis=1)
+        A1 = np.linalg.norm(N1, axis=1)
+        n0, n1 = N0 / A0[:, None], N1 / A1[:, None]
+        theta = np.arctan2(np.einsum("ij,ij->i", np.cross(n0, n1), e) / el, np.einsum("ij,ij->i", n0, n1))
+        h0, h1 = A0 / el, A1 / el
+        g0, g1 = -n0 / h0[:, None], -n1 / h1[:, None]
+        t0 = (np.einsum("ij,ij->i", w0 - v0, e) / el2)[:, None]
+        t1 = (np.einsum("ij,ij->i", w1 - v0, e) / el2)[:, None]
+        gv0 = -(1 - t0) * g0 - (1 - t1) * g1
+        gv1 = -t0 * g0 - t1 * g1
+        return theta, (gv0, gv1, g0, g1)
+
     def forces(self, x):
+        """-grad W + M g on free vertices, 0 on pinned ones."""
         f = np.zeros((self.n, 3))
         d = x[self.j] - x[self.i]
         l = np.sqrt(np.einsum("ij,ij->i", d, d))
@@ -41,24 +93,9 @@ class NumpyCloth:
         self._scatter(self.i, fi, f)
         self._scatter(self.j, -fi, f)
         if self.H is not None and len(self.H):
-            v0, v1, w0, w1 = (x[self.H[:, a]] for a in range(4))
-            e = v1 - v0
-            el2 = np.einsum("ij,ij->i", e, e)
-            el = np.sqrt(el2)
-            N0 = np.cross(e, w0 - v0)        # normal of (v0, v1, w0)
-            N1 = np.cross(-e, w1 - v1)       # normal of (v1, v0, w1)
-            A0 = np.linalg.norm(N0, axis=1)
-            A1 = np.linalg.norm(N1, axis=1)
-            n0, n1 = N0 / A0[:, None], N1 / A1[:, None]
-            theta = np.arctan2(np.einsum("ij,ij->i", np.cross(n0, n1), e) / el, np.einsum("ij,ij->i", n0, n1))
-            h0, h1 = A0 / el, A1 / el
-            g0, g1 = -n0 / h0[:, None], -n1 / h1[:, None]
-            t0 = (np.einsum("ij,ij->i", w0 - v0, e) / el2)[:, None]
-            t1 = (np.einsum("ij,ij->i", w1 - v0, e) / el2)[:, None]
-            gv0 = -(1 - t0) * g0 - (1 - t1) * g1
-            gv1 = -t0 * g0 - t1 * g1
+            theta, grads = self._hinge_terms(x)
             s = (-self.k * (theta - self.theta_bar))[:, None]  # -dW/dtheta
-            for a, grad in enumerate((gv0, gv1, g0, g1)):
+            for a, grad in enumerate(grads):
                 self._scatter(self.H[:, a], s * grad, f)
         f += self.mass[:, None] * self.g
         return f * self.free
@@ -66,5 +103,117 @@ class NumpyCloth:
     def symplectic_euler(self, x, v, dt, n_steps=1):
         for _ in range(n_steps):
             v += dt * self.inv_mass[:, None] * self.forces(x)
+            x += dt * v
+        return x, v
+
+    # -- implicit --------------------------------------------------------------------------------
+    def hessian_psd(self, x):
+        """The PSD Hessian H_psd(x) (springs (S4) + Gauss-Newton hinges) over the free degrees of
+        freedom, as a scipy CSR matrix (COO triplets summed)."""
+        d = x[self.i] - x[self.j]
+        l = np.sqrt(np.einsum("ij,ij->i", d, d))
+        u = d / l[:, None]
+        s = np.maximum(0.0, (l - self.L) / l)
+        k = self.c / self.L ** 2
+        uu = np.einsum("ea,eb->eab", u, u)
+        K = k[:, None, None] * (uu + s[:, None, None] * (np.eye(3) - uu))           # (m, 3, 3)
+        vi, vj = self.i, self.j
+        blocks = [K, K, -K, -K]
+        rows_v = [vi, vj, vi, vj]
+        cols_v = [vi, vj, vj, vi]
+        if self.H is not None and len(self.H):
+            _, grads = self._hinge_terms(x)
+            G = np.stack(grads, axis=1)                                             # (h, 4, 3)
+            Hb = self.k[:, None, None, None, None] * np.einsum("hai,hbj->habij", G, G)  # (h, 4, 4, 3, 3)
+            for a in range(4):
+                for b in range(4):
+                    blocks.append(Hb[:, a, b])
+                    rows_v.append(self.H[:, a])
+                    cols_v.append(self.H[:, b])
+        B = np.concatenate(blocks)                                                  # (nb, 3, 3)
+        rv = np.concatenate(rows_v)
+        cv = np.concatenate(cols_v)
+        a3 = np.arange(3)
+        shape = (len(B), 3, 3)
+        r = np.broadcast_to(self.dof[3 * rv[:, None, None] + a3[None, :, None]], shape)  # row dof of B[., a, b]
+        c = np.broadcast_to(self.dof[3 * cv[:, None, None] + a3[None, None, :]], shape)  # column dof
+        keep = (r >= 0) & (c >= 0)
+        nf = self.n_free_dofs
+        return scipy.sparse.csr_matrix((B[keep], (r[keep], c[keep])), shape=(nf, nf))
+
+    def backward_euler(self, x, v, dt, tol=1e-5, maxiter=100000):
+        """One Baraff-Witkin step in place (x, v numpy (n, 3)); returns (x, v).  Records
+        ``last_assembly_s``, ``last_solve_s``, ``last_iterations`` and ``last_residual``."""
+        t0 = time.perf_counter()
+        free = ~self.pinned
+        m3 = np.repeat(self.mass[free], 3)
+        A = self.hessian_psd(x) + scipy.sparse.diags(m3 / (dt * dt))
+        b = (self.forces(x) + self.mass[:, None] * v / dt)[free].reshape(-1)
+        Pinv = scipy.sparse.diags(1.0 / A.diagonal())
+        t1 = time.perf_counter()
+        count = [0]
+
+        def cb(_):
+            count[0] += 1
+        y, info = scipy.sparse.linalg.cg(A, b, rtol=tol, atol=0.0, maxiter=maxiter, M=Pinv, callback=cb)
+        t2 = time.perf_counter()
+        if info != 0:
+            raise RuntimeError(f"scipy cg did not converge (info={info}) after {count[0]} iterations")
+        dx = np.zeros((self.n, 3))
+        dx[free] = y.reshape(-1, 3)
+        x += dx
+        v[...] = dx / dt
+        v[~free] = 0.0
+        self.last_assembly_s, self.last_solve_s = t1 - t0, t2 - t1
+        self.last_iterations = count[0]
+        nb = np.linalg.norm(b)
+        self.last_residual = float(np.linalg.norm(b - A @ y) / nb) if nb > 0 else 0.0
+        return x, v
+
+
+class NumpyRod:
+    """The rod of :class:`engine.rod.Rod` (its h, E, masses and pins), stepped in numpy/scipy."""
+
+    def __init__(self, rod):
+        self.h, self.E, self.m = rod.h, rod.E, rod.mass
+        self.pinned = rod.pinned
+        self.inv_m = np.where(rod.pinned, 0.0, 1.0 / rod.mass)
+        self.n = rod.n
+
+    def forces(self, x):
+        s = np.diff(x) / self.h - 1.0
+        t = self.E * s            # segment tensions
+        f = np.zeros(self.n)
+        f[:-1] += t
+        f[1:] -= t
+        return f
+
+    def symplectic_euler(self, x, v, dt, n_steps=1):
+        for _ in range(n_steps):
+            v += dt * self.inv_m * self.forces(x)
+            x += dt * v
+        return x, v
+
+    def backward_euler(self, x, v, dt, n_steps=1):
+        """(M + dt^2 K) v+ = M v + dt f(x) (pinned rows: v+ = 0), x+ = x + dt v+."""
+        k = self.E / self.h
+        dt2 = dt * dt
+        diag = self.m.copy()
+        diag[:-1] += dt2 * k
+        diag[1:] += dt2 * k
+        upper = np.zeros(self.n)
+        lower = np.zeros(self.n)
+        upper[1:] = -dt2 * k      # ab[0, j] = A[j-1, j]
+        lower[:-1] = -dt2 * k     # ab[2, j] = A[j+1, j]
+        p = self.pinned
+        diag[p] = 1.0
+        pi = np.flatnonzero(p)
+        upper[pi[pi + 1 < self.n] + 1] = 0.0   # row i pinned: A[i, i+1] = 0
+        lower[pi[pi > 0] - 1] = 0.0            # row i pinned: A[i, i-1] = 0
+        ab = np.stack([upper, diag, lower])
+        for _ in range(n_steps):
+            rhs = self.m * v + dt * self.forces(x)
+            rhs[p] = 0.0
+            v[:] = scipy.linalg.solve_banded((1, 1), ab, rhs)
             x += dt * v
         return x, v

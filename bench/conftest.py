@@ -1,10 +1,25 @@
 """Benchmarks and their correctness checks share the tests' runtime: CPU, 2 threads, f64
-(override with ELASTIC_THREADS / ELASTIC_FP for the thread- and precision-variant runs)."""
+(override with ELASTIC_THREADS / ELASTIC_FP for the thread- and precision-variant runs).
+
+In the plain ``pytest`` run (pytest-benchmark disabled by the project's addopts) the benchmark
+bodies run once each on tiny scenes (profile "smoke"); with ``--benchmark-enable`` the profile
+is "quick" unless ELASTIC_BENCH_PROFILE says otherwise (bench/config.py)."""
 import pytest
 
+from bench import config as bench_config
 from engine import runtime
+
+
+def pytest_configure(config):
+    disabled = config.getoption("benchmark_disable", False) and not config.getoption("benchmark_enable", False)
+    bench_config.set_default_profile(not disabled)
 
 
 @pytest.fixture(scope="session", autouse=True)
 def taichi_runtime():
-    return runtime.init()
+    yield runtime.init()
+    # Taichi writes its offline kernel cache when the program is torn down; a plain interpreter
+    # exit does not get there (see the report's start-up section), so the next run would compile
+    # every kernel again.
+    import taichi as ti
+    ti.reset()

@@ -1,53 +1,101 @@
-"""Timed: one explicit (symplectic Euler) cloth step, engine against the numpy baseline.
+"""Timed: the explicit (symplectic Euler) cloth step, engine against the numpy baseline, and the
+kernels it is made of, with the force-kernel variants (parallel atomics, serialized scatter, the
+engine's CSR gather).
 
-Run the timings with ``python -m pytest bench --benchmark-enable`` (or ``python -m bench``);
-in the default test run (benchmarks disabled) each body runs once as a smoke test.
-Sizes: ELASTIC_BENCH_SIZES (comma-separated vertices per side; default 32,64,128).
+Run the timings with ``python -m bench`` (or ``python -m pytest bench --benchmark-enable
+--benchmark-only``); in the default test run (benchmarks disabled) each body runs once on a
+tiny cloth as a smoke test.  What each body computes is checked in bench/test_correctness.py.
 """
-import os
-
 import numpy as np
 import pytest
-import taichi as ti
 
+from bench import config, traffic
 from bench.baseline import NumpyCloth
+from bench.timing import measure, sync
+from bench.variants import bending_variant, spring_variant
+from engine.energies.bending import gather_hinge_vectors_kernel, hinge_forces_kernel
 from engine.integrators import get as integrator
-from engine.scenes import cloth
+from engine.integrators.explicit import symplectic_euler_update
+from engine.model import float_dtype, zero_vec3
 
-SIZES = [int(s) for s in os.environ.get("ELASTIC_BENCH_SIZES", "32,64,128").split(",")]
-
-
-@pytest.fixture(scope="module", params=SIZES, ids=lambda n: f"{n}x{n}")
-def scene(request):
-    c = cloth(request.param, E=1e3, rho=0.1, B=1e-4)
-    return c
+SIZES = config.sizes("cloth")
+DT = 1e-5  # below the stable dt of every cloth here (E = 1e3): timing only, the cost does not depend on dt
+MODELS = {"springs+bending": True, "springs": False}
 
 
-def _dt(c):
-    return 1e-5  # far below the stable dt of every size here: timing only
+def _fb():
+    return np.dtype(float_dtype()).itemsize
 
 
-@pytest.mark.parametrize("bending", [True, False], ids=["springs+bending", "springs"])
-def test_engine_symplectic_step(benchmark, scene, bending):
-    c = scene if bending else cloth(int(round(np.sqrt(scene.model.n))), E=1e3, rho=0.1, B=0.0)
-    st = c.model.make_state()
+def _info(c, bending):
+    return dict(side=int(round(np.sqrt(c.model.n))), n=c.model.n, m=c.springs.m,
+                h=c.bending.n_hinges if (bending and c.bending is not None) else 0)
+
+
+@pytest.mark.parametrize("impl", ["engine", "numpy"])
+@pytest.mark.parametrize("model", list(MODELS))
+@pytest.mark.parametrize("side", SIZES)
+def test_explicit_step(benchmark, side, model, impl):
+    """Engine and numpy baseline for the same cloth run back to back (adjacent in time, so that a
+    shared machine's load changes little between the two)."""
+    bending = MODELS[model]
+    c = config.cloth_scene(side, bending)
+    x0, v0 = config.cloth_start_state(c)
+    info = _info(c, bending)
+    if impl == "numpy":
+        base = NumpyCloth(c.model, c.springs, c.bending if bending else None)
+        x, v = x0.copy(), v0.copy()
+        measure(benchmark, lambda: base.symplectic_euler(x, v, DT, 1), group="cloth-explicit-step", impl="numpy",
+                model=model, kernel="explicit_step", **info)
+        assert np.all(np.isfinite(x))
+        return
+    st = c.model.make_state(x0, v0)
     step = integrator("symplectic-euler")
-    dt = _dt(c)
 
     def run():
-        step.step(c.model, st, dt, 1)
-        ti.sync()
+        step.step(c.model, st, DT, 1)
+        sync()
 
-    run()  # compile and warm up outside the clock
-    benchmark.extra_info.update(vertices=c.model.n, edges=c.springs.m, kind="engine")
-    benchmark.pedantic(run, rounds=30, iterations=5, warmup_rounds=2)
+    measure(benchmark, run, group="cloth-explicit-step", impl="engine", model=model, kernel="explicit_step",
+            bytes=traffic.kernel_bytes("explicit_step", info["n"], info["m"], info["h"], _fb()), **info)
     assert np.all(np.isfinite(st.numpy().x))
 
 
-def test_numpy_symplectic_step(benchmark, scene):
-    c = scene
-    base = NumpyCloth(c.model, c.springs, c.bending)
-    x, v = c.model.X.copy(), np.zeros((c.model.n, 3))
-    benchmark.extra_info.update(vertices=c.model.n, edges=c.springs.m, kind="numpy")
-    benchmark.pedantic(lambda: base.symplectic_euler(x, v, _dt(c), 1), rounds=10, iterations=2, warmup_rounds=1)
-    assert np.all(np.isfinite(x))
+KERNELS = ["zero", "spring_gather", "spring_atomic", "spring_serial", "hinge_pass1", "hinge_gather",
+           "bending_gather", "bending_atomic", "bending_serial", "update"]
+
+
+@pytest.mark.parametrize("kernel", KERNELS)
+@pytest.mark.parametrize("side", SIZES)
+def test_force_kernels(benchmark, side, kernel):
+    """One call of each kernel of the explicit step, and of the force-kernel variants."""
+    c = config.cloth_scene(side, True)
+    x0, v0 = config.cloth_start_state(c)
+    st = c.model.make_state(x0, v0)
+    m = c.model
+    f = m.work_vec3("bench_f")
+    sp, be = c.springs, c.bending
+    if kernel == "zero":
+        call = lambda: zero_vec3(f)  # noqa: E731
+    elif kernel.startswith("spring_"):
+        add = spring_variant(kernel.split("_")[1])
+        call = lambda: add(st.x, sp, f)  # noqa: E731
+    elif kernel.startswith("bending_"):
+        add = bending_variant(kernel.split("_")[1])
+        call = lambda: add(st.x, be, f)  # noqa: E731
+    elif kernel == "hinge_pass1":
+        call = lambda: hinge_forces_kernel(st.x, *be._args(), be._per_hinge_vec)  # noqa: E731
+    elif kernel == "hinge_gather":
+        call = lambda: gather_hinge_vectors_kernel(be._per_hinge_vec, be._offsets, be._entries, f)  # noqa: E731
+    else:  # update (dt = 0: the state stays put)
+        zero_vec3(f)
+        call = lambda: symplectic_euler_update(st.x, st.v, f, m.inv_mass_nd, m.gravity_vec, 0.0)  # noqa: E731
+
+    def run():
+        call()
+        sync()
+
+    info = _info(c, True)
+    measure(benchmark, run, group="cloth-force-kernels", impl="engine" if kernel in (
+        "zero", "spring_gather", "hinge_pass1", "hinge_gather", "bending_gather", "update") else kernel.split("_")[1],
+            kernel=kernel, bytes=traffic.kernel_bytes(kernel, info["n"], info["m"], info["h"], _fb()), **info)

@@ -1,21 +1,83 @@
-"""The benchmarks compute what they claim: engine and numpy baseline agree on the same input.
+"""The benchmarks compute what they claim (runs in CI, no timing; the timed benchmarks live in
+bench/test_bench_*.py):
 
-Runs in CI (no timing); the timed benchmarks live in bench/test_bench_*.py.
+* the benchmark scenes are the lessons' scenes (engine.scenes.cloth, engine.rod.Rod) and have the
+  lessons' physics (no force at rest, mass and area-spring stiffness sums, the rod's CFL limit);
+* the numpy baseline and the engine agree on forces and on explicit steps;
+* the force-kernel variants (atomics, serialized scatter) agree with the engine's gathers;
+* the numpy + scipy backward-Euler step agrees with the engine's (PCG and Cholesky) on the same
+  input, and its assembled matrix with the engine's PSD Hessian;
+* the rod baselines agree with engine.rod, and the rod-as-Model backward Euler with the rod's;
+* the headline's accuracy-matched dt and crossover helpers, the traffic model, and the streaming
+  copy kernel do what they say.
 """
+import math
+
 import numpy as np
 import pytest
 
-from bench.baseline import NumpyCloth
+from bench import config, headline, traffic
+from bench.baseline import NumpyCloth, NumpyRod
+from bench.variants import VARIANTS, bending_variant, spring_variant, stream_copy
+from engine.integrators import BackwardEuler
 from engine.integrators import get as integrator
 from engine.model import vec3_ndarray
-from engine.scenes import cloth
+from engine.scenes import G, cloth
 
+
+def _deformed(c, seed=0, amp=0.01):
+    rng = np.random.default_rng(seed)
+    return c.model.X + amp * rng.standard_normal((c.model.n, 3))
+
+
+# -- scenes ----------------------------------------------------------------------------------
+
+def test_bench_cloth_is_the_lessons_scene_with_its_physics():
+    c = config.cloth_scene(12, True)
+    ref = cloth(12, E=config.CLOTH_E, rho=config.CLOTH_RHO, B=config.CLOTH_B)
+    assert np.array_equal(c.model.X, ref.model.X)
+    assert np.array_equal(c.springs.edges_np, ref.springs.edges_np)
+    assert np.allclose(c.springs.c_np, ref.springs.c_np) and np.array_equal(c.model.pinned, ref.model.pinned)
+    assert c.bending.variant == "notes" and np.allclose(c.bending.k, ref.bending.k)
+    # lumped masses sum to rho x area; area springs: each triangle gives a third of its area to each
+    # edge, so sum_e c_e = E x area (DESIGN section 6)
+    assert math.isclose(float(np.sum(c.model.mass)), config.CLOTH_RHO * 1.0, rel_tol=1e-12)
+    assert math.isclose(float(np.sum(c.springs.c_np)), config.CLOTH_E * 1.0, rel_tol=1e-12)
+    # at rest the only force on a free vertex is its weight; pinned vertices get none
+    f = vec3_ndarray(c.model.n)
+    c.model.forces(c.model.X_nd, f)
+    weight = c.model.mass[:, None] * np.array([0.0, 0.0, -G])
+    got = f.to_numpy()
+    assert np.allclose(got[c.model.free], weight[c.model.free], rtol=0, atol=1e-12)
+    assert np.all(got[c.model.pinned] == 0.0)
+
+
+def test_bench_start_state_keeps_pins_and_is_deterministic():
+    c = config.cloth_scene(12, True)
+    x0, v0 = config.cloth_start_state(c)
+    x1, v1 = config.cloth_start_state(c)
+    assert np.array_equal(x0, x1) and np.array_equal(v0, v1)
+    p = c.model.pinned
+    assert np.array_equal(x0[p], c.model.X[p]) and np.all(v0[p] == 0.0)
+    assert 0.0 < np.abs(x0 - c.model.X).max() <= 0.06 and np.abs(v0).max() == pytest.approx(0.2)
+
+
+def test_bench_rod_is_engine_rod_with_cfl_limit_h_over_c():
+    rod, u0 = config.rod_scene(101)
+    h = 1.0 / 100
+    c = math.sqrt(config.ROD_E / config.ROD_RHO)
+    assert np.allclose(rod.h, h) and rod.pinned[0] and not rod.pinned[1:].any()
+    # symplectic Euler on the rod is stable iff dt <= h/c (DESIGN section 6; pinned end: slightly more)
+    assert rod.stable_dt() >= h / c * (1 - 1e-12)
+    assert abs(u0.max() - 1e-3) < 1e-4
+
+
+# -- explicit: forces and steps ----------------------------------------------------------------
 
 @pytest.mark.parametrize("B", [0.0, 1e-3])
 def test_numpy_forces_equal_engine_forces_on_deformed_cloth(B):
     c = cloth(12, E=1e3, rho=0.1, B=B)
-    rng = np.random.default_rng(0)
-    x = c.model.X + 0.01 * rng.standard_normal((c.model.n, 3))
+    x = _deformed(c)
     f = vec3_ndarray(c.model.n)
     c.model.forces(vec3_ndarray(c.model.n, x), f)
     ref = NumpyCloth(c.model, c.springs, c.bending).forces(x)
@@ -32,3 +94,150 @@ def test_numpy_and_engine_symplectic_steps_agree():
     got = st.numpy()
     assert np.max(np.abs(got.x - x)) <= 1e-10 * np.max(np.abs(x - c.model.X))
     assert np.max(np.abs(got.v - v)) <= 1e-9 * np.max(np.abs(v))
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_force_kernel_variants_equal_engine_forces(variant):
+    c = cloth(10, E=1e3, rho=0.1, B=1e-3)
+    x = vec3_ndarray(c.model.n, _deformed(c, seed=1))
+    ref_s = vec3_ndarray(c.model.n)
+    c.springs.add_forces(x, ref_s)
+    ref_b = vec3_ndarray(c.model.n)
+    c.bending.add_forces(x, ref_b)
+    for add, ref, obj in ((spring_variant(variant), ref_s, c.springs), (bending_variant(variant), ref_b, c.bending)):
+        f = vec3_ndarray(c.model.n)
+        add(x, obj, f)
+        r = ref.to_numpy()
+        assert np.max(np.abs(f.to_numpy() - r)) <= 1e-12 * np.max(np.abs(r)), (variant, type(obj).__name__)
+
+
+def test_stream_copy_copies():
+    import taichi as ti
+    src = np.random.default_rng(0).standard_normal(1000)
+    a, b = ti.ndarray(dtype=ti.f64, shape=1000), ti.ndarray(dtype=ti.f64, shape=1000)
+    a.from_numpy(src)
+    stream_copy(a, b)
+    assert np.array_equal(b.to_numpy(), src)
+
+
+# -- implicit: the scipy baseline against the engine ---------------------------------------------
+
+def test_scipy_assembly_equals_engine_psd_hessian():
+    c = cloth(8, E=1e3, rho=0.1, B=1e-3)
+    x = _deformed(c, seed=2, amp=0.02)
+    base = NumpyCloth(c.model, c.springs, c.bending)
+    H = base.hessian_psd(x).toarray()
+    ref = c.model.dense_hessian(vec3_ndarray(c.model.n, x), psd=True)
+    free = np.repeat(c.model.free, 3)
+    ref = ref[np.ix_(free, free)]
+    assert np.max(np.abs(H - ref)) <= 1e-10 * np.max(np.abs(ref))
+
+
+@pytest.mark.parametrize("solver", ["pcg", "cholesky"])
+def test_scipy_and_engine_backward_euler_steps_agree(solver):
+    c = cloth(10, E=1e3, rho=0.1, B=1e-3)
+    x0, v0 = config.cloth_start_state(c)
+    dt = 1.0 / 60.0
+    tol = 1e-10
+    st = c.model.make_state(x0, v0)
+    be = BackwardEuler(solver=solver, tol=tol, newton_iterations=1, line_search=False, max_iter=100000)
+    be.advance(c.model, st, dt)
+    base = NumpyCloth(c.model, c.springs, c.bending)
+    x, v = x0.copy(), v0.copy()
+    base.backward_euler(x, v, dt, tol=tol)
+    got = st.numpy()
+    moved = np.max(np.abs(x - x0))
+    assert moved > 1e-3  # the step does something
+    assert np.max(np.abs(got.x - x)) <= 1e-7 * moved
+    assert np.max(np.abs(got.v - v)) <= 1e-7 * np.max(np.abs(v))
+    assert base.last_residual <= tol and base.last_iterations > 0
+
+
+def test_scipy_step_reaches_the_benchmark_tolerance():
+    c = config.cloth_scene(12, True)
+    x0, v0 = config.cloth_start_state(c)
+    base = NumpyCloth(c.model, c.springs, c.bending)
+    x, v = x0.copy(), v0.copy()
+    base.backward_euler(x, v, config.IMPLICIT_DT, tol=config.IMPLICIT_TOL[64])
+    assert base.last_residual <= config.IMPLICIT_TOL[64]
+    assert base.last_assembly_s > 0 and base.last_solve_s > 0
+
+
+# -- rod ---------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("method", ["symplectic-euler", "backward-euler"])
+def test_numpy_rod_steps_equal_engine_rod(method):
+    rod, u0 = config.rod_scene(201)
+    dt = 0.9 * rod.stable_dt() if method == "symplectic-euler" else 10 * float(rod.h[0])
+    st = rod.new_state(u0)
+    rod.run(st, dt, 30, method)
+    base = NumpyRod(rod)
+    x, v = rod.p + u0, np.zeros(rod.n)
+    (base.symplectic_euler if method == "symplectic-euler" else base.backward_euler)(x, v, dt, 30)
+    assert np.max(np.abs(st.x.to_numpy() - x)) <= 1e-10 * np.max(np.abs(u0))
+    assert np.max(np.abs(st.v.to_numpy() - v)) <= 1e-9 * max(np.max(np.abs(v)), 1e-30)
+
+
+@pytest.mark.parametrize("solver", ["pcg", "cholesky"])
+def test_rod_model_backward_euler_equals_rod_thomas(solver):
+    rod, u0 = config.rod_scene(201)
+    dt = 10 * float(rod.h[0])
+    st = rod.new_state(u0)
+    rod.run(st, dt, 3, "backward-euler")
+    model = config.rod_as_model(rod)
+    x0 = np.asarray(model.X, dtype=np.float64).copy()
+    x0[:, 0] += u0
+    ms = model.make_state(x0)
+    BackwardEuler(solver=solver, tol=1e-12, newton_iterations=1, line_search=False, max_iter=100000).step(
+        model, ms, dt, 3)
+    got = ms.numpy()
+    assert np.max(np.abs(got.x[:, 0] - st.x.to_numpy())) <= 1e-8 * np.max(np.abs(u0))
+    assert np.max(np.abs(got.x[:, 1:])) == 0.0
+
+
+# -- headline helpers, traffic model -------------------------------------------------------------
+
+def test_accuracy_matched_dt_loses_the_stated_energy():
+    w = headline.pendulum_omega(1.0)
+    assert math.isclose(w, math.sqrt(1.5 * G), rel_tol=1e-12)
+    dt = headline.accuracy_matched_dt(w, 0.10)
+    assert math.isclose(headline.energy_kept_per_second(w, dt), 0.90, rel_tol=1e-9)
+    assert headline.energy_kept_per_second(w, 1.05 * dt) < 0.90 < headline.energy_kept_per_second(w, 0.95 * dt)
+    # small-dt form: -ln(0.9) ~ w^2 dt
+    assert math.isclose(dt, -math.log(0.9) / w ** 2, rel_tol=0.01)
+
+
+def test_backward_euler_damps_a_mode_as_the_accuracy_model_says():
+    """The model behind the accuracy-matched dt, checked on the engine: one free mass on a spring
+    (w = sqrt(k/m)) keeps (1 + w^2 dt^2)^-1 of its energy per backward-Euler step."""
+    from engine.model import Model
+    X = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+    model = Model.from_springs(X, np.array([[0, 1]]), k=4.0, mass=[1.0, 1.0], pinned=[0])
+    w = math.sqrt(4.0 / 1.0)  # c = k L, axial stiffness c/L^2 = 4
+    dt = 0.05
+    st = model.make_state(X + np.array([[0, 0, 0], [1e-6, 0, 0]]))
+    e0 = 0.5 * 4.0 * 1e-12
+    be = BackwardEuler(solver="cholesky", tol=1e-12, newton_iterations=1, line_search=False)
+    n = 20
+    be.step(model, st, dt, n)
+    s = st.numpy()
+    e = 0.5 * 1.0 * s.v[1, 0] ** 2 + 0.5 * 4.0 * (s.x[1, 0] - 1.0) ** 2
+    assert math.isclose(e / e0, (1 + (w * dt) ** 2) ** (-n), rel_tol=1e-4)
+
+
+def test_crossover_interpolates_the_sign_change():
+    E = [1.0, 10.0, 100.0]
+    E_c, note = headline.crossover(E, [1.0, 10.0, 100.0], [10.0, 10.0 * 10 ** 0.5, 10.0])
+    assert note.startswith("explicit") and 10.0 < E_c < 100.0
+    assert headline.crossover(E, [1, 1, 1], [2, 2, 2])[0] is None
+
+
+def test_traffic_model_scales_with_the_mesh():
+    c = config.cloth_scene(12, True)
+    n, m, h = c.model.n, c.springs.m, c.bending.n_hinges
+    for k in traffic.KERNELS:
+        b1, b2 = traffic.kernel_bytes(k, n, m, h), traffic.kernel_bytes(k, 4 * n, 4 * m, 4 * h)
+        assert b1 > 0 and 3.5 < b2 / b1 < 4.5
+        assert traffic.kernel_bytes(k, n, m, h, fb=4) < b1
+    assert traffic.kernel_bytes("zero", n) == 24 * n
+    assert traffic.implicit_step_bytes(n, m, h, 10) > 10 * traffic.kernel_bytes("cg_iteration", n, m, h)

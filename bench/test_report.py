@@ -1,0 +1,108 @@
+"""The report tooling without timing: ``python -m bench --help`` works, and the report writer turns
+synthetic benchmark data into the JSON, Markdown and PNG files with the derived figures right."""
+import json
+import subprocess
+import sys
+
+import pytest
+
+from bench import report, traffic
+from bench.machine import machine_info
+
+
+def _bench(group, median, **extra):
+    extra.setdefault("steps_per_call", 1)
+    extra.setdefault("config", "t2-f64")
+    return dict(group=group, name=f"test_{group}", fullname="x", params={}, param="", extra_info=extra, options={},
+                stats=dict(min=median, max=median, mean=median, stddev=0.0, rounds=3, median=median, iqr=0.0))
+
+
+def _synthetic_raw(tmp_path):
+    raw = tmp_path / "raw"
+    raw.mkdir()
+    n, m, h = 16384, 48641, 48133
+    cl = dict(side=128, n=n, m=m, h=h)
+    b = []
+    b.append(_bench("bandwidth", 1e-3, impl="taichi", level="cache", kernel="copy", n=1 << 19, bytes=8e7))  # 80 GB/s
+    b.append(_bench("bandwidth", 2e-3, impl="numpy", level="cache", kernel="copy", n=1 << 19, bytes=8e7))
+    b.append(_bench("bandwidth", 0.02, impl="taichi", level="dram", kernel="copy", n=1 << 25, bytes=4e8))
+    b.append(_bench("cloth-explicit-step", 16384 * 30e-9, impl="engine", model="springs+bending",
+                    kernel="explicit_step", bytes=traffic.kernel_bytes("explicit_step", n, m, h), **cl))
+    b.append(_bench("cloth-explicit-step", 16384 * 300e-9, impl="numpy", model="springs+bending", **cl))
+    b.append(_bench("cloth-explicit-step", 4096 * 60e-9, impl="engine", model="springs+bending",
+                    kernel="explicit_step", side=64, n=4096, m=12033, h=11781,
+                    bytes=traffic.kernel_bytes("explicit_step", 4096, 12033, 11781)))
+    for k in report.ALL_KERNELS:
+        b.append(_bench("cloth-force-kernels", 100e-6, impl="engine", kernel=k,
+                        bytes=traffic.kernel_bytes(k, n, m, h), **cl))
+    b.append(_bench("cloth-implicit-step", 0.5, impl="engine-pcg", solver="pcg", linear_iterations=1000,
+                    bytes=traffic.implicit_step_bytes(n, m, h, 1000), **cl))
+    b.append(_bench("cloth-implicit-step", 0.8, impl="engine-cholesky", solver="cholesky", linear_iterations=1, **cl))
+    b.append(_bench("cloth-implicit-step", 4.0, impl="scipy", solver="scipy-cg-jacobi", linear_iterations=1200,
+                    assembly_s=1.0, solve_s=3.0, **cl))
+    b.append(_bench("rod-step", 1e-3, impl="engine-rod", method="symplectic-euler", n=10000, steps_per_call=100,
+                    bytes=traffic.kernel_bytes("rod_explicit_step", 10000)))
+    b.append(_bench("rod-step", 3e-3, impl="numpy", method="symplectic-euler", n=10000, steps_per_call=100))
+    (raw / "bench-t2-f64.json").write_text(json.dumps(dict(benchmarks=b)))
+    t1 = [_bench("cloth-explicit-step", 16384 * 50e-9, impl="engine", model="springs+bending", config="t1-f64",
+                 kernel="explicit_step", **cl)]
+    (raw / "bench-t1-f64.json").write_text(json.dumps(dict(benchmarks=t1)))
+    pts = []
+    for E, ex, imp in ((10.0, 0.1, 1.0), (1e3, 1.0, 1.0 * 10 ** 0.5), (1e5, 10.0, 1.0)):
+        imp_r = {k: dict(pcg=dict(cost=imp, iterations=100, step_s=imp / 60), cholesky=dict(skipped="x"), best="pcg",
+                         best_cost=imp) for k in ("1/60", "accuracy")}
+        pts.append(dict(E=E, explicit=dict(lambda_max=1.0, safety=0.9, dt=1e-4, stable=True, stable_check_steps=200,
+                                           cost=ex), implicit=imp_r))
+    side = dict(n=4096, explicit_step_s=1e-3, points=pts,
+                crossover={"1/60": dict(E=1e3, note="explicit cheaper below"), "accuracy": dict(E=None, note="none")})
+    (raw / "headline.json").write_text(json.dumps(dict(pendulum_omega=3.84, accuracy_loss=0.1,
+                                                       dts={"1/60": 1 / 60, "accuracy": 7.16e-3}, sides={"64": side})))
+    st = dict(import_s=1.0, init_s=0.1, scene_s=0.2, compile_total_s=5.0, process_s=7.0, first_calls_s=5.1,
+              cache_files_after_exit=0,
+              paths={"explicit-step": dict(first_s=1.0, second_s=0.001, compile_s=0.999)})
+    (raw / "startup-cold.json").write_text(json.dumps(st))
+    info = machine_info()
+    info["last_level_cache_bytes"] = 32 << 20
+    (raw / "run.json").write_text(json.dumps(dict(timestamp="T", profile="quick", command="python -m bench --quick",
+                                                  machine=info, errors=[], wall_s=1.0)))
+    return raw
+
+
+def test_bench_help():
+    out = subprocess.run([sys.executable, "-m", "bench", "--help"], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0
+    assert "--quick" in out.stdout and "--out" in out.stdout
+
+
+def test_bench_rejects_unknown_part():
+    out = subprocess.run([sys.executable, "-m", "bench", "--skip", "nonsense"], capture_output=True, text=True,
+                         timeout=60)
+    assert out.returncode == 2 and "unknown part" in out.stderr
+
+
+def test_report_writer_on_synthetic_data(tmp_path):
+    raw = _synthetic_raw(tmp_path)
+    doc = report.build(raw)
+    # derived figures
+    r = report.find(doc["rows"], group="cloth-explicit-step", impl="engine", side=128, config="t2-f64")
+    assert r["ns_per_vertex"] == pytest.approx(30.0)
+    assert doc["bandwidth"]["t2-f64"]["cache"]["floor"] == pytest.approx(8e10)
+    assert r["floor_level"] == "cache"
+    assert r["bw_fraction"] == pytest.approx(r["bytes"] / 8e10 / r["per_step_s"])
+    rod = report.find(doc["rows"], group="rod-step", impl="engine-rod")
+    assert rod["per_step_s"] == pytest.approx(1e-5)
+    t = {x["name"].split(",")[0]: x for x in doc["targets"]}
+    assert t["explicit step"]["met"] is False and "1.2x over" in t["explicit step"]["by"]
+    assert t["backward-Euler step"]["met"] is True and t["backward-Euler step"]["value"] == pytest.approx(8.0)
+    exps = {(s["group"], s["impl"]): s["exponent"] for s in doc["scaling"]}
+    assert exps[("cloth-explicit-step", "engine")] == pytest.approx(0.5)  # 2x the time for 4x the vertices
+    paths = report.write(doc, tmp_path / "out", "T")
+    for key in ("json", "md", "cost_vs_E", "cost_vs_N", "latest_md", "latest_json", "latest_cost_vs_E"):
+        assert paths[key].exists() and paths[key].stat().st_size > 0, key
+    md = paths["md"].read_text()
+    for section in ("## Machine", "## Targets", "## Headline", "## Cloth: explicit", "## Step kernels",
+                    "## Cloth: backward-Euler", "## Rod", "## Scaling with N", "## Start-up", "## Bandwidth floor"):
+        assert section in md, section
+    assert "T-cost_vs_E.png" in md and "latest-cost_vs_E.png" in paths["latest_md"].read_text()
+    assert "**missed** (1.2x over)" in md
+    assert json.loads(paths["json"].read_text())["targets"][1]["met"] is True
