@@ -17,6 +17,7 @@ Taichi's own ``TI_*`` variables still work for everything else (e.g. ``TI_LOG_LE
 """
 from __future__ import annotations
 
+import atexit
 import contextlib
 import io
 import os
@@ -111,7 +112,20 @@ def init(arch: str | None = None, threads: int | None = None, fp: int | None = N
             f"--arch {arch} is not available on this machine ({exc}); use --arch cpu"
         ) from None
     _current = wanted
+    # Taichi writes its offline kernel cache when the program is finalised; a script that just
+    # exits never finalises it, so every process would compile every kernel again.
+    atexit.register(_finalise)
     return _current
+
+
+def _finalise() -> None:
+    global _current
+    if _current is not None:
+        _current = None
+        try:
+            ti.reset()
+        except Exception:  # exiting anyway; a failed cache write only costs compile time next run
+            pass
 
 
 def current() -> RuntimeInfo | None:
