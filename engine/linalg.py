@@ -393,6 +393,7 @@ def _zero_pinned(a: vec3_array, inv_mass: scalar_array):
 @ti.kernel
 def _assemble_mass(A: ti.types.sparse_matrix_builder(), mass: scalar_array, inv_mass: scalar_array, a: float):
     # a m_i on the diagonal of free vertices, 1 for pinned (eliminated) ones: 3 triplets per vertex
+    ti.loop_config(serialize=True)  # triplets in a fixed order: the factorisation is bitwise reproducible
     for i in range(mass.shape[0]):
         val = a * mass[i]
         if inv_mass[i] == 0.0:
@@ -406,6 +407,7 @@ def _assemble_springs(A: ti.types.sparse_matrix_builder(), edges: edge_array, bl
                       inv_mass: scalar_array, scale: float):
     # H_e = [[K, -K], [-K, K]] on (i, j)   (S3)/(S4); rows/cols of pinned vertices dropped.
     # Lower triangle only (row >= col): Eigen's LL^T reads only that half.  21 triplets per edge.
+    ti.loop_config(serialize=True)  # triplets in a fixed order: the factorisation is bitwise reproducible
     for e in range(edges.shape[0]):
         i = edges[e][0]
         j = edges[e][1]
@@ -432,6 +434,7 @@ def _assemble_hinges(A: ti.types.sparse_matrix_builder(), hinges: hinge_array, b
     # blocks[h, 4a+b] = d2W_h/dx_a dx_b on slots (v0, v1, w0, w1); pinned rows/cols dropped.
     # Lower triangle only: blocks with va > vb in full, diagonal blocks (a = b) for r >= s:
     # 6 x 9 + 4 x 6 = 78 triplets per hinge.
+    ti.loop_config(serialize=True)  # triplets in a fixed order: the factorisation is bitwise reproducible
     for h in range(hinges.shape[0]):
         for ab in range(16):
             va = hinges[h, ab // 4]

@@ -15,12 +15,12 @@ Measured and asserted:
   parallel loop: the PCG restart's r.z and |r|^2, the residual and energy kernels) are summed
   per task and tasks are ceil(n / block_dim) with an adaptive block_dim that depends on the
   thread count, so the last bits differ. Asserted: equal to far below the solver tolerance.
-- implicit, 2 threads, run to run: Cholesky is NOT bitwise reproducible: the assembly kernels
-  (linalg._assemble_mass/_assemble_springs/_assemble_hinges) append triplets to a
-  SparseMatrixBuilder from a parallel loop, so the triplet order, and with it the order in
-  which duplicates are summed, depends on thread timing (measured: 1 run in 6 differs). PCG
-  was reproducible in every run measured, but its reductions do not guarantee it. Asserted:
-  equal to far below the solver tolerance.
+- implicit, 2 threads, run to run: Cholesky (started from the explicit phase's state) is
+  bitwise reproducible: the assembly kernels (linalg._assemble_mass/_assemble_springs/
+  _assemble_hinges) append their triplets to the SparseMatrixBuilder in a serialized loop, so
+  duplicates are always summed in the same order (from a parallel loop, 1 run in 6 differed).
+  PCG was reproducible in every run measured, but its parallel reductions do not guarantee
+  it. Asserted: PCG equal to far below the solver tolerance.
 """
 import json
 import os
@@ -57,8 +57,10 @@ def digest(phase):
 dt = 0.5 * stable_dt_estimate(model)
 make_integrator("symplectic-euler").step(model, state, dt, 300)
 out["symplectic-euler"] = digest("symplectic-euler")
+after_explicit = state.numpy()
 make_integrator("backward-euler", solver="pcg").step(model, state, 2e-3, 3)
 out["backward-euler-pcg"] = digest("backward-euler-pcg")
+state = model.make_state(after_explicit.x, after_explicit.v)  # Cholesky from the same explicit state
 make_integrator("backward-euler", solver="cholesky").step(model, state, 2e-3, 3)
 out["backward-euler-cholesky"] = digest("backward-euler-cholesky")
 np.savez(sys.argv[1], **arrays)
@@ -112,6 +114,11 @@ def test_two_threads_implicit_stepping_is_reproducible_to_round_off(runs):
     (_, a), (_, b) = runs[2]
     for phase in PHASES[1:]:
         assert_close(a, b, phase)
+
+
+def test_two_threads_cholesky_stepping_is_bitwise_reproducible(runs):
+    (a, _), (b, _) = runs[2]
+    assert a["backward-euler-cholesky"] == b["backward-euler-cholesky"]
 
 
 def test_one_and_two_threads_implicit_stepping_agree_to_round_off(runs):
