@@ -34,7 +34,8 @@ monotonically; the values are kept in ``last_objectives``.  If no step length do
 decreases Phi measurably (round-off level, next to the minimum) the iteration stops there
 (``last_info.line_search_failed``).
 
-Newton stops when |grad Phi(x)| <= newton_tol |grad Phi(x_n)|.  Linear solves go through
+Newton stops when |grad Phi(x)| <= newton_tol max(|grad Phi(x_n)|, |M g|) (the weight keeps a
+settled hanging body from chasing round-off).  Linear solves go through
 :mod:`engine.linalg` ("pcg" or "cholesky", relative tolerance ``tol``); a linear solve that
 does not reach ``tol`` raises :class:`engine.linalg.SolverError` and leaves the state as
 it was before the step.  Finally v+ = (x+ - x_n)/dt; pinned vertices keep x and get v = 0.
@@ -48,6 +49,7 @@ any dt.
 import math
 from dataclasses import dataclass, field
 
+import numpy as np
 import taichi as ti
 
 from engine.errors import ParameterError
@@ -63,6 +65,16 @@ EXACT_BELOW = 1e-2  # try the exact Hessian once |grad Phi| < EXACT_BELOW |grad 
 # --------------------------------------------------------------------------------------------
 # Kernels (one pass over the vertices each; pinned vertices: inv_mass == 0)
 # --------------------------------------------------------------------------------------------
+
+def _weight_norm(model: Model) -> float:
+    """|M g| over the free vertices (N): 0 without gravity."""
+    cached = getattr(model, "_weight_norm_cache", None)
+    if cached is None:
+        m = np.asarray(model.mass, dtype=float)[np.asarray(model.free)]
+        cached = float(np.sqrt(np.sum(m * m)) * np.linalg.norm(np.asarray(model.gravity, dtype=float)))
+        model._weight_norm_cache = cached
+    return cached
+
 
 @ti.kernel
 def _be_residual(x: vec3_array, xn: vec3_array, v: vec3_array, f: vec3_array, mass: scalar_array,
@@ -162,7 +174,7 @@ class BackwardEuler:
       solver            "pcg" | "cholesky" (or a LinearSolver instance)
       tol               relative residual of each linear solve (engine.linalg (L3))
       newton_iterations Newton iterations per step (1 = Baraff & Witkin's linearised step)
-      newton_tol        stop when |grad Phi| <= newton_tol |grad Phi(x_n)|
+      newton_tol        stop when |grad Phi| <= newton_tol max(|grad Phi(x_n)|, |M g|)
       line_search       backtracking Armijo line search on Phi (monotone decrease)
       rayleigh_alpha    mass-proportional damping alpha [1/s]   (D = alpha M + beta H)
       rayleigh_beta     stiffness-proportional damping beta [s]
@@ -272,7 +284,10 @@ class BackwardEuler:
             gnorm = math.sqrt(g2)
             info.gradient_norms.append(gnorm)
             if g0 is None:
-                g0 = gnorm
+                # the scale the tolerance is relative to: |grad Phi(x_n)|, but at least the weight
+                # |M g| (a settled hanging body has a round-off-sized gradient that Newton cannot
+                # reduce by newton_tol again)
+                g0 = max(gnorm, _weight_norm(model))
             if gnorm <= self.newton_tol * g0 or gnorm == 0.0:
                 info.newton_converged = True
                 break
