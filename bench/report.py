@@ -243,8 +243,10 @@ def _why_explicit(rows, side, step) -> list:
     if all(ks.values()):
         total = sum(k["per_step_s"] for k in ks.values())
         parts = ", ".join(f"{k} {v['per_step_s'] * 1e6:.0f} us ({v['per_step_s'] / total:.0%})" for k, v in ks.items())
-        why.append(f"The step is {len(ks)} kernel launches; timed alone they take {parts} "
-                   f"(sum {total * 1e3:.3f} ms against {step['per_step_s'] * 1e3:.3f} ms for the step).")
+        why.append(f"The engine's step is one kernel launch (engine/integrators/fused_step.py: the per-hinge "
+                   f"pass, then per vertex the spring and hinge gathers with the velocity update, then the "
+                   f"position update); its {len(ks)} parts, launched alone as the generic path does, take {parts} "
+                   f"(sum {total * 1e3:.3f} ms against {step['per_step_s'] * 1e3:.3f} ms for the fused step).")
         bend = ks["hinge_pass1"]["per_step_s"] + ks["hinge_gather"]["per_step_s"]
         why.append(f"Bending costs {bend * 1e6:.0f} us of it ({bend / total:.0%}): the per-hinge pass evaluates "
                    f"atan2, three cross products, square roots and divisions for ~{step['h']} hinges and writes "
@@ -255,8 +257,8 @@ def _why_explicit(rows, side, step) -> list:
         if step.get("floor_s"):
             why.append(f"At its bandwidth floor the step would take {step['floor_s'] * 1e6:.0f} us "
                        f"({step['floor_s'] / step['n'] * 1e9:.1f} ns/vertex): the target is within the hardware's "
-                       f"reach, not within this formulation's (five launches, a trigonometric per-hinge pass, "
-                       f"per-hinge vectors written and read back).")
+                       f"reach, not within this formulation's (a trigonometric per-hinge pass in f64, "
+                       f"per-hinge vectors written and read back, a fixed launch cost).")
     sp = find(rows, config="t2-f64", group="cloth-explicit-step", impl="engine", model="springs", side=side)
     if sp:
         why.append(f"Without bending the engine's step is {sp['ns_per_vertex']:.1f} ns/vertex "

@@ -147,9 +147,22 @@ class ForwardEuler(ExplicitIntegrator):
 
 
 class SymplecticEuler(ExplicitIntegrator):
+    """``fused`` (default): springs [+ one bending energy] models take one kernel launch per step
+    (:mod:`engine.integrators.fused_step`, bitwise the same result); others the generic path."""
+
     name = "symplectic-euler"
 
+    def __init__(self, fused: bool = True):
+        self.fused = bool(fused)
+
     def advance(self, model, state, dt):
+        if self.fused:
+            from engine.integrators.fused_step import fused_symplectic_step
+            one_launch = fused_symplectic_step(model)
+            if one_launch is not None:
+                one_launch(state, float(dt))
+                state.t += dt
+                return
         f = self._elastic_forces(model, state)
         symplectic_euler_update(state.x, state.v, f, model.inv_mass_nd, model.gravity_vec, dt)
         state.t += dt
