@@ -336,27 +336,38 @@ def bending_energy_kernel(x: vec3_array, hinges: hinge_array, k: scalar_array, t
     return total
 
 
+@ti.func
+def hinge_force_vectors(x: ti.template(), hinges: ti.template(), k: ti.template(), theta_bar: ti.template(),
+                        mode, fh: ti.template(), h):
+    """Pass 1 for hinge h: fh[h, slot] = -dW_h/dx_slot = -W'(theta) dtheta/dx_slot (= W' u, Bridson's u)."""
+    e, a0, a1 = _frame(x, hinges, h)
+    W, W1, W2 = _energy_terms(_theta(e, a0, a1), k[h], theta_bar[h], mode)
+    g = _theta_grad(e, a0, a1)
+    for a in ti.static(range(4)):
+        fh[h, a] = -W1 * g[a]
+
+
+@ti.func
+def hinge_gather(vh: ti.template(), offsets: ti.template(), entries: ti.template(), v):
+    """Pass 2 for vertex v: the sum over its incidences (entry = 4*hinge + slot) of vh[hinge, slot]."""
+    acc = ti.math.vec3(0.0)
+    for j in range(offsets[v], offsets[v + 1]):
+        ent = entries[j]
+        acc += vh[ent // 4, ent % 4]
+    return acc
+
+
 @ti.kernel
 def hinge_forces_kernel(x: vec3_array, hinges: hinge_array, k: scalar_array, theta_bar: scalar_array,
                         mode: ti.i32, fh: vec3_array2):
-    # pass 1: fh[h, slot] = -dW_h/dx_slot = -W'(theta) dtheta/dx_slot  (= W' u, Bridson's u)
     for h in range(hinges.shape[0]):
-        e, a0, a1 = _frame(x, hinges, h)
-        W, W1, W2 = _energy_terms(_theta(e, a0, a1), k[h], theta_bar[h], mode)
-        g = _theta_grad(e, a0, a1)
-        for a in ti.static(range(4)):
-            fh[h, a] = -W1 * g[a]
+        hinge_force_vectors(x, hinges, k, theta_bar, mode, fh, h)
 
 
 @ti.kernel
 def gather_hinge_vectors_kernel(vh: vec3_array2, offsets: int_array, entries: int_array, out: vec3_array):
-    # pass 2: out[v] += sum over incidences (entry = 4*hinge + slot) of vh[hinge, slot]
     for v in range(offsets.shape[0] - 1):
-        acc = ti.math.vec3(0.0)
-        for j in range(offsets[v], offsets[v + 1]):
-            ent = entries[j]
-            acc += vh[ent // 4, ent % 4]
-        out[v] += acc
+        out[v] += hinge_gather(vh, offsets, entries, v)
 
 
 @ti.kernel

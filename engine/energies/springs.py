@@ -89,20 +89,26 @@ def spring_edge_energies_kernel(x: vec3_array, edges: edge_array, L: scalar_arra
         out[e] = 0.5 * c[e] * strain * strain
 
 
+@ti.func
+def spring_gather(x: ti.template(), i, offsets: ti.template(), inc_other: ti.template(),
+                  inc_inv_L: ti.template(), inc_c_over_L: ti.template()):
+    """(S2) gathered for vertex i: sum_{e ~ i} -(c_e/L_e)(l/L_e - 1)(x_i - x_j)/l, written as
+    -(c_e/L_e)(1/L_e - 1/l)(x_i - x_j) (one division per incidence)."""
+    acc = ti.math.vec3(0.0)
+    xi = x[i]
+    for k in range(offsets[i], offsets[i + 1]):
+        d = xi - x[inc_other[k]]
+        l = d.norm()
+        if l > 0.0:
+            acc -= inc_c_over_L[k] * (inc_inv_L[k] - 1.0 / l) * d
+    return acc
+
+
 @ti.kernel
 def spring_add_forces_kernel(x: vec3_array, offsets: int_array, inc_other: int_array,
                              inc_inv_L: scalar_array, inc_c_over_L: scalar_array, f: vec3_array):
-    # (S2) gathered per vertex: f_i += sum_{e ~ i} -(c_e/L_e)(l/L_e - 1)(x_i - x_j)/l,
-    # written as -(c_e/L_e)(1/L_e - 1/l)(x_i - x_j) (one division per incidence)
     for i in range(x.shape[0]):
-        acc = ti.math.vec3(0.0)
-        xi = x[i]
-        for k in range(offsets[i], offsets[i + 1]):
-            d = xi - x[inc_other[k]]
-            l = d.norm()
-            if l > 0.0:
-                acc -= inc_c_over_L[k] * (inc_inv_L[k] - 1.0 / l) * d
-        f[i] += acc
+        f[i] += spring_gather(x, i, offsets, inc_other, inc_inv_L, inc_c_over_L)
 
 
 @ti.kernel

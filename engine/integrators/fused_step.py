@@ -16,23 +16,10 @@ bending), so both give bitwise the same states; a test checks it.
 
 import taichi as ti
 
-from engine.energies.bending import (BendingEnergy, _energy_terms, _frame, _theta, _theta_grad, hinge_array,
-                                     int_array, vec3_array2)
-from engine.energies.springs import SpringEnergy
+from engine.energies.bending import (BendingEnergy, hinge_array, hinge_force_vectors, hinge_gather, int_array,
+                                     vec3_array2)
+from engine.energies.springs import SpringEnergy, spring_gather
 from engine.model import scalar_array, vec3_array
-
-
-@ti.func
-def _spring_gather(x: ti.template(), i, offsets: ti.template(), inc_other: ti.template(),
-                   inc_inv_L: ti.template(), inc_c_over_L: ti.template()):
-    acc = ti.math.vec3(0.0)
-    xi = x[i]
-    for k in range(offsets[i], offsets[i + 1]):
-        d = xi - x[inc_other[k]]
-        l = d.norm()
-        if l > 0.0:
-            acc -= inc_c_over_L[k] * (inc_inv_L[k] - 1.0 / l) * d
-    return acc
 
 
 @ti.kernel
@@ -40,7 +27,7 @@ def se_step_springs(x: vec3_array, v: vec3_array, inv_mass: scalar_array, g: ti.
                     offsets: int_array, inc_other: int_array, inc_inv_L: scalar_array, inc_c_over_L: scalar_array):
     for i in range(x.shape[0]):
         f = ti.math.vec3(0.0)
-        f += _spring_gather(x, i, offsets, inc_other, inc_inv_L, inc_c_over_L)
+        f += spring_gather(x, i, offsets, inc_other, inc_inv_L, inc_c_over_L)
         if inv_mass[i] > 0.0:
             v[i] += dt * (inv_mass[i] * f + g)
         else:
@@ -57,19 +44,11 @@ def se_step_springs_bending(x: vec3_array, v: vec3_array, inv_mass: scalar_array
                             theta_bar: scalar_array, mode: ti.i32, fh: vec3_array2, h_offsets: int_array,
                             h_entries: int_array):
     for h in range(hinges.shape[0]):
-        e, a0, a1 = _frame(x, hinges, h)
-        W, W1, W2 = _energy_terms(_theta(e, a0, a1), k[h], theta_bar[h], mode)
-        gr = _theta_grad(e, a0, a1)
-        for a in ti.static(range(4)):
-            fh[h, a] = -W1 * gr[a]
+        hinge_force_vectors(x, hinges, k, theta_bar, mode, fh, h)
     for i in range(x.shape[0]):
         f = ti.math.vec3(0.0)
-        f += _spring_gather(x, i, offsets, inc_other, inc_inv_L, inc_c_over_L)
-        acc = ti.math.vec3(0.0)
-        for j in range(h_offsets[i], h_offsets[i + 1]):
-            ent = h_entries[j]
-            acc += fh[ent // 4, ent % 4]
-        f += acc
+        f += spring_gather(x, i, offsets, inc_other, inc_inv_L, inc_c_over_L)
+        f += hinge_gather(fh, h_offsets, h_entries, i)
         if inv_mass[i] > 0.0:
             v[i] += dt * (inv_mass[i] * f + g)
         else:
