@@ -116,6 +116,22 @@ def copy_vec3(src: vec3_array, dst: vec3_array):
         dst[i] = src[i]
 
 
+@ti.kernel
+def axpy_into(x: vec3_array, dx: vec3_array, s: float, out: vec3_array):
+    # out = x + s dx
+    for i in range(x.shape[0]):
+        out[i] = x[i] + s * dx[i]
+
+
+@ti.kernel
+def dot_vec3(a: vec3_array, b: vec3_array) -> float:
+    # sum_i a_i . b_i over every vertex
+    s = 0.0
+    for i in range(a.shape[0]):
+        s += a[i].dot(b[i])
+    return s
+
+
 # --------------------------------------------------------------------------------------------
 # Energy protocol
 # --------------------------------------------------------------------------------------------

@@ -65,7 +65,8 @@ import taichi as ti
 from engine.errors import ParameterError
 from engine.integrators.explicit import gershgorin_lambda_max, lambda_max_power
 from engine.linalg import SOLVERS, SolverError, make_solver
-from engine.model import Model, copy_vec3, float_dtype, scalar_array, vec3_array, vec3_ndarray, zero_vec3
+from engine.model import (Model, axpy_into, copy_vec3, dot_vec3, float_dtype, scalar_array, vec3_array, vec3_ndarray,
+                          zero_vec3)
 
 __all__ = ["StaticResult", "solve_static"]
 
@@ -109,25 +110,11 @@ def _gravity_work(x: vec3_array, xref: vec3_array, mass: scalar_array, inv_mass:
 
 
 @ti.kernel
-def _axpy_into(x: vec3_array, dx: vec3_array, s: float, out: vec3_array):
-    for i in range(x.shape[0]):
-        out[i] = x[i] + s * dx[i]
-
-
-@ti.kernel
 def _mass_norm2(a: vec3_array, mass: scalar_array, inv_mass: scalar_array) -> float:
     s = 0.0
     for i in range(a.shape[0]):
         if inv_mass[i] > 0.0:
             s += mass[i] * a[i].dot(a[i])
-    return s
-
-
-@ti.kernel
-def _dot(a: vec3_array, b: vec3_array) -> float:
-    s = 0.0
-    for i in range(a.shape[0]):
-        s += a[i].dot(b[i])
     return s
 
 
@@ -215,7 +202,7 @@ def solve_static(model: Model, x0=None, tol: float = 1e-10, max_iter: int = 100,
         mu = nu * lam_ref * min(1.0, r) + 1e-14 * lam_ref
         use_exact = exact and exact_ok and r < exact_below
         info = lin.solve(model, x, f, dx, mu, 1.0, psd=not use_exact)  # (H + mu M) dx = f + M g
-        slope = _dot(f, dx) if info.converged else 0.0  # -(grad Pi . dx) > 0 for a descent direction
+        slope = dot_vec3(f, dx) if info.converged else 0.0  # -(grad Pi . dx) > 0 for a descent direction
         if use_exact and not (info.converged and slope > 0.0):
             exact_ok = False  # indefinite here: back to the PSD Hessian
             continue
@@ -225,7 +212,7 @@ def solve_static(model: Model, x0=None, tol: float = 1e-10, max_iter: int = 100,
         s = 1.0
         accepted = False
         for _ in range(MAX_BACKTRACKS + 1):
-            _axpy_into(x, dx, s, trial)
+            axpy_into(x, dx, s, trial)
             Pi_t = potential(trial)
             if Pi_t <= Pi - ARMIJO_C1 * s * slope:
                 accepted = True
@@ -233,7 +220,7 @@ def solve_static(model: Model, x0=None, tol: float = 1e-10, max_iter: int = 100,
             s *= 0.5
         if not accepted:
             # no measurable decrease: round-off level near the minimum, or a poor direction
-            _axpy_into(x, dx, 1.0, trial)
+            axpy_into(x, dx, 1.0, trial)
             r_t, _ = net_and_residual(trial)
             if r_t < r:
                 accepted, s, Pi_t = True, 1.0, potential(trial)

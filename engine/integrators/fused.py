@@ -32,7 +32,7 @@ import math
 import numpy as np
 import taichi as ti
 
-from engine.energies.springs import SpringEnergy, edge_array, int_array
+from engine.energies.springs import SpringEnergy, edge_array, int_array, spring_gather
 from engine.integrators.explicit import BlowUpError, _blowup_message, stable_dt_estimate
 from engine.model import Model, State, scalar_array, vec3_array
 
@@ -44,17 +44,9 @@ METHODS = {"forward-euler": FORWARD_EULER, "symplectic-euler": SYMPLECTIC_EULER,
 @ti.func
 def _spring_forces(x: ti.template(), offsets: ti.template(), inc_other: ti.template(),
                    inc_inv_L: ti.template(), inc_c_over_L: ti.template(), f: ti.template()):
-    # (S2) gathered per vertex, the expression of spring_add_forces_kernel:
-    # f_i = -sum_{e~i} (c_e/L_e)(1/L_e - 1/l)(x_i - x_j)
+    # (S2) gathered per vertex, by the same ti.func as spring_add_forces_kernel
     for i in range(x.shape[0]):
-        acc = ti.math.vec3(0.0)
-        xi = x[i]
-        for k in range(offsets[i], offsets[i + 1]):
-            d = xi - x[inc_other[k]]
-            l = d.norm()
-            if l > 0.0:
-                acc -= inc_c_over_L[k] * (inc_inv_L[k] - 1.0 / l) * d
-        f[i] = acc
+        f[i] = spring_gather(x, i, offsets, inc_other, inc_inv_L, inc_c_over_L)
 
 
 @ti.func

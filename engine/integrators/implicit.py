@@ -54,7 +54,7 @@ import taichi as ti
 
 from engine.errors import ParameterError
 from engine.linalg import SOLVERS, LinearSolver, SolverError, make_solver
-from engine.model import Model, State, copy_vec3, scalar_array, vec3_array, zero_vec3
+from engine.model import Model, State, axpy_into, copy_vec3, dot_vec3, scalar_array, vec3_array, zero_vec3
 
 ARMIJO_C1 = 1e-4
 MAX_BACKTRACKS = 30
@@ -118,23 +118,9 @@ def _be_inertia(x: vec3_array, xn: vec3_array, v: vec3_array, mass: scalar_array
 
 
 @ti.kernel
-def _axpy_into(x: vec3_array, dx: vec3_array, s: float, out: vec3_array):
-    for i in range(x.shape[0]):
-        out[i] = x[i] + s * dx[i]
-
-
-@ti.kernel
 def _sub_into(a: vec3_array, b: vec3_array, out: vec3_array):
     for i in range(a.shape[0]):
         out[i] = a[i] - b[i]
-
-
-@ti.kernel
-def _dot(a: vec3_array, b: vec3_array) -> float:
-    s = 0.0
-    for i in range(a.shape[0]):
-        s += a[i].dot(b[i])
-    return s
 
 
 @ti.kernel
@@ -246,7 +232,7 @@ class BackwardEuler:
             _sub_into(x, xn, d)
             zero_vec3(hq)
             model.add_hessian_product(xn, d, hq, True)
-            phi += 0.5 * self.rayleigh_beta / dt * _dot(d, hq)
+            phi += 0.5 * self.rayleigh_beta / dt * dot_vec3(d, hq)
         return phi
 
     def advance(self, model: Model, state: State, dt: float) -> None:
@@ -304,7 +290,7 @@ class BackwardEuler:
                                         extra=(self.rayleigh_beta / dt, xn))
             self.total_solves += 1
             self.total_linear_iterations += lin.iterations
-            slope = -_dot(rhs, dx) if lin.converged else 0.0  # grad Phi . dx < 0: descent
+            slope = -dot_vec3(rhs, dx) if lin.converged else 0.0  # grad Phi . dx < 0: descent
             if use_exact and not (lin.converged and slope < 0.0):
                 exact_ok = False  # indefinite: back to the PSD Hessian, same iteration
                 continue
@@ -322,7 +308,7 @@ class BackwardEuler:
                 s = 1.0
                 accepted = False
                 for _ in range(MAX_BACKTRACKS + 1):
-                    _axpy_into(x, dx, s, trial)
+                    axpy_into(x, dx, s, trial)
                     phi_t = self._objective(model, trial, xn, v, dt, W_n, work)
                     if phi_t < phi and phi_t <= phi + ARMIJO_C1 * s * slope:
                         accepted = True
@@ -338,7 +324,7 @@ class BackwardEuler:
                 info.objectives.append(phi)
                 info.step_sizes.append(s)
             else:
-                _axpy_into(x, dx, 1.0, x)
+                axpy_into(x, dx, 1.0, x)
                 info.step_sizes.append(1.0)
             if self.newton_iterations == 1:
                 break  # Baraff & Witkin: one linearised step, no final gradient evaluation
