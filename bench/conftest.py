@@ -17,9 +17,4 @@ def pytest_configure(config):
 
 @pytest.fixture(scope="session", autouse=True)
 def taichi_runtime():
-    yield runtime.init()
-    # Taichi writes its offline kernel cache when the program is torn down; a plain interpreter
-    # exit does not get there (see the report's start-up section), so the next run would compile
-    # every kernel again.
-    import taichi as ti
-    ti.reset()
+    return runtime.init()  # engine.runtime finalises Taichi at exit, which writes the kernel cache

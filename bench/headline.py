@@ -238,8 +238,6 @@ def main(argv=None) -> int:
                     log=lambda s: print(s, file=sys.stderr, flush=True))
     out["wall_s"] = time.perf_counter() - t
     out["profile"] = prof
-    import taichi as ti
-    ti.reset()  # writes Taichi's offline kernel cache (a plain exit does not)
     text = json.dumps(out, indent=1)
     if args.json:
         with open(args.json, "w") as fh:

@@ -49,12 +49,7 @@ def simulate(ctx, name: str, model, state, dt: float, n_steps: int, integrator="
     rec.run(name)
     steps, kin, pot = [], [], []
 
-    def draw(step):
-        if log is not None and rec.enabled:
-            rec.set_time(step, step * dt)
-            log(rec, state)
-        if observe is not None:
-            observe(step, state)
+    draw = step_drawer(rec, dt, state, log, observe)
 
     def flush_energies(first):
         if rec.enabled and kin[first:]:
@@ -110,6 +105,18 @@ def simulate(ctx, name: str, model, state, dt: float, n_steps: int, integrator="
                 flushed = len(kin)
                 draw(s)
     return np.asarray(steps), np.asarray(kin), np.asarray(pot)
+
+
+def step_drawer(rec, dt: float, state, log=None, observe=None):
+    """``draw(step)`` for a run: at simulation step ``step`` (time step * dt) ``log(rec, state)``
+    draws the geometry when recording, and ``observe(step, state)`` measures."""
+    def draw(step):
+        if log is not None and rec.enabled:
+            rec.set_time(step, step * dt)
+            log(rec, state)
+        if observe is not None:
+            observe(step, state)
+    return draw
 
 
 def run_chunked(ctx, name: str, dt: float, n_steps: int, every: int, advance, draw):

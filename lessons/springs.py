@@ -33,7 +33,7 @@ from engine.rod import ModalReference, Rod
 from engine.statics import solve_static
 
 from ._framework import Experiment, Lesson, Stage, param
-from ._scene import edge_strain, run_chunked, simulate as scene_simulate
+from ._scene import edge_strain, run_chunked, simulate as scene_simulate, step_drawer
 
 G = 9.81
 
@@ -82,15 +82,7 @@ def simulate_fused(ctx, name: str, model: Model, state, dt: float, n_steps: int,
     rec = ctx.rec
     ctx.note_integrator(name, method, fixed)
     rec.run(name)
-
-    def draw(step):
-        if log is not None and rec.enabled:
-            rec.set_time(step, step * dt)
-            log(rec, state)
-        if observe is not None:
-            observe(step, state)
-
-    return run_chunked(ctx, name, dt, n_steps, every, draw=draw,
+    return run_chunked(ctx, name, dt, n_steps, every, draw=step_drawer(rec, dt, state, log, observe),
                        advance=lambda chunk, done: run_fused(model, state, dt, chunk, method, energy_bound,
                                                              step_offset=done))
 
