@@ -76,6 +76,31 @@ def validate_config(cfg) -> None:
         extra()
 
 
+# ------------------------------------------------------------------------ interrupts
+
+class Terminated(BaseException):
+    """SIGTERM during a run (exit code 143)."""
+
+
+_pending_signal: list = []  # the signal a handler saw; re-raised at the next check point
+
+
+def note_signal(signum: int) -> None:
+    """Called by the CLI's signal handlers before they raise: if the exception they raise is
+    swallowed (a signal landing inside a ``__del__`` is only printed), :func:`check_interrupt`
+    raises it again at the next chunk of the run."""
+    _pending_signal.append(signum)
+
+
+def check_interrupt() -> None:
+    """Raise KeyboardInterrupt / :class:`Terminated` if a signal arrived and was not acted on."""
+    import signal as _signal
+    if _pending_signal:
+        signum = _pending_signal[-1]
+        _pending_signal.clear()
+        raise KeyboardInterrupt() if signum == _signal.SIGINT else Terminated()
+
+
 # -------------------------------------------------------------------------- stepping
 
 INTEGRATOR_CHOICES = ("default", "forward-euler", "symplectic-euler", "velocity-verlet", "backward-euler")
@@ -307,6 +332,7 @@ def run_lesson(lesson: Lesson, cfg, rec, stages: list[int] | None = None, out=sy
     results = results if results is not None else []
     all_passed = True
     for index in stages or range(1, len(lesson.stages) + 1):
+        check_interrupt()
         stage = lesson.stages[index - 1]
         print(f"\n== {lesson.id} · stage {index}/{len(lesson.stages)}: {stage.title}", file=out, flush=True)
         if not quiet:

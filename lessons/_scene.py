@@ -15,6 +15,8 @@ from engine.linalg import SolverError
 from engine import errors
 from engine.integrators.explicit import BlowUpError, _blowup_message, stable_dt_estimate
 
+from ._framework import check_interrupt
+
 
 def simulate(ctx, name: str, model, state, dt: float, n_steps: int, integrator="symplectic-euler",
              every: int | None = None, energy_bound: float | None = None, observe=None, log=None,
@@ -75,6 +77,7 @@ def simulate(ctx, name: str, model, state, dt: float, n_steps: int, integrator="
         begin(model, state)
     with ctx.timed(name, n_steps):
         for s in range(1, n_steps + 1):
+            check_interrupt()
             try:
                 for _ in range(substeps):
                     if hasattr(integ, "advance"):
@@ -134,6 +137,7 @@ def run_chunked(ctx, name: str, dt: float, n_steps: int, every: int, advance, dr
     done = 0
     with ctx.timed(name, n_steps):
         while done < n_steps:
+            check_interrupt()
             chunk = min(every, n_steps - done)
             try:
                 K, W = advance(chunk, done)

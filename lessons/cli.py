@@ -18,7 +18,8 @@ import sys
 from pathlib import Path
 
 from . import registry
-from ._framework import Stepping, _field_type, range_text, run_lesson, validate_config, write_json_atomic
+from ._framework import (Stepping, Terminated, _field_type, _pending_signal, note_signal, range_text, run_lesson,
+                         validate_config, write_json_atomic)
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INT, EXIT_TERM = 0, 1, 2, 130, 143
 
@@ -44,10 +45,6 @@ class _Parser(argparse.ArgumentParser):
 
 
 _CONTROL = re.compile("[\x00-\x1f\x7f-\x9f\u2028\u2029]")  # would break the one-line error message
-
-
-class _Terminated(BaseException):
-    pass
 
 
 def _number(kind: type, flag: str, meta: dict):
@@ -296,10 +293,12 @@ def _make_recorder(lesson, path):
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
 
-    def on_term(signum, frame):
-        raise _Terminated()
+    def on_signal(signum, frame):
+        note_signal(signum)  # acted on later if this raise lands in a __del__ and is swallowed
+        raise KeyboardInterrupt() if signum == signal.SIGINT else Terminated()
 
-    previous = signal.signal(signal.SIGTERM, on_term)
+    _pending_signal.clear()
+    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         lessons_ = registry.all_lessons()
         ids = [l.id for l in lessons_]
@@ -325,7 +324,7 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("\ninterrupted: the recording and the results so far were written", file=sys.stderr)
         return EXIT_INT
-    except _Terminated:
+    except Terminated:
         print("\nterminated: the recording and the results so far were written", file=sys.stderr)
         return EXIT_TERM
     except Exception as exc:  # a bug, not bad input: one line, the work so far kept, exit 1
@@ -340,4 +339,6 @@ def main(argv: list[str] | None = None) -> int:
               file=sys.stderr)
         return EXIT_FAILED
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        _pending_signal.clear()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)

@@ -41,3 +41,37 @@ def test_signal_during_run_finalises_recording_and_results(tmp_path, sig, code):
     verify = subprocess.run([rerun, "rrd", "verify", str(tmp_path / "r.rrd")],
                             capture_output=True, text=True)
     assert verify.returncode == 0, verify.stderr
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_whose_exception_was_swallowed_stops_the_run_at_the_next_chunk(sig):
+    """A signal that lands inside a __del__ (e.g. a Taichi ndarray being freed) has its exception
+    printed and dropped by Python; the handler also notes it, and the run loop raises it at the
+    next chunk instead of running on."""
+    from engine.recorder import NullRecorder
+    from lessons._framework import Terminated, _pending_signal, note_signal
+    from lessons._scene import run_chunked
+
+    class Ctx:
+        rec = NullRecorder()
+
+        @staticmethod
+        def timed(label, n):
+            import contextlib
+            return contextlib.nullcontext()
+
+    chunks = []
+
+    def advance(chunk, done):
+        chunks.append(done)
+        if done == 20:
+            note_signal(sig)  # the handler ran, but its exception was swallowed
+        return [0.0] * chunk, [0.0] * chunk
+
+    expected = KeyboardInterrupt if sig == signal.SIGINT else Terminated
+    try:
+        with pytest.raises(expected):
+            run_chunked(Ctx(), "run", 1e-3, 1000, 10, advance, lambda step: None)
+    finally:
+        _pending_signal.clear()
+    assert chunks == [0, 10, 20]
