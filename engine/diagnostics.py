@@ -14,7 +14,8 @@ reproducible across thread counts.
 import numpy as np
 import taichi as ti
 
-from engine.model import Model, State, scalar_array, vec3_array
+from engine.fields import scalar_array, vec3_array
+from engine.model import Model, State
 
 
 @ti.kernel

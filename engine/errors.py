@@ -8,6 +8,10 @@ class ParameterError(ValueError):
     """A parameter outside its valid range. Message names the parameter, value and range."""
 
 
+class ModelError(ValueError):
+    """Invalid model input (mesh, energy or pins); the message is one line and names the offending element."""
+
+
 class BlowUpError(RuntimeError):
     """A simulation left its stable regime; raised at the step it was detected.
 

@@ -81,25 +81,16 @@ from typing import NamedTuple
 import numpy as np
 import taichi as ti
 
-from engine.model import Model, float_dtype, scalar_array, vec3_array, vec3_ndarray, zero_vec3
+from engine.constants import SERIAL_BELOW
+from engine.fields import (axpy_inplace, edge_array, float_dtype, free_dot, int_array, mat3_array, mat3_array2,
+                           scalar_array, vec3_array, vec3_array2, vec3_ndarray, zero_pinned, zero_vec3)
+from engine.fields import int_array2 as hinge_array
+from engine.model import Model
 
 __all__ = ["SolverError", "LinearSolveInfo", "LinearSolver", "PCGSolver", "CholeskySolver", "SOLVERS",
            "make_solver", "apply_system", "triplet_capacity"]
 
 SOLVERS = ("pcg", "cholesky")
-# Below this many vertices PCG runs serialised: with springs + bending the whole CG loop is one
-# serial kernel.  Measured on the 2-core CPU (backward Euler, cloth, ms per CG iteration):
-# 32x32: 0.10 serial-whole vs 0.60 parallel 3-launch; 64x64: 0.37 vs 0.84; 128x128: 1.52 vs 1.52
-# (a parallel launch costs ~0.1 ms and each ndarray argument ~5 us of Python; the loops are
-# memory-bound, so the second thread gains little).
-SERIAL_BELOW = 20000
-
-mat3_array = ti.types.ndarray(dtype=ti.math.mat3, ndim=1)
-mat3_array2 = ti.types.ndarray(dtype=ti.math.mat3, ndim=2)
-edge_array = ti.types.ndarray(dtype=ti.math.ivec2, ndim=1)
-hinge_array = ti.types.ndarray(dtype=ti.i32, ndim=2)
-int_array = ti.types.ndarray(dtype=ti.i32, ndim=1)
-vec3_array2 = ti.types.ndarray(dtype=ti.math.vec3, ndim=2)
 
 
 class SolverError(RuntimeError):
@@ -142,12 +133,6 @@ def _mass_product(p: vec3_array, mass: scalar_array, a: float, q: vec3_array):
     # q = a M p  (start of q = A p; the energies then add H p)
     for i in range(p.shape[0]):
         q[i] = a * mass[i] * p[i]
-
-
-@ti.kernel
-def _axpy_inplace(q: vec3_array, t: vec3_array, s: float):
-    for i in range(q.shape[0]):
-        q[i] += s * t[i]
 
 
 @ti.kernel
@@ -223,16 +208,6 @@ def _pcg_direction(beta: float, z: vec3_array, p: vec3_array, mass: scalar_array
         pi = z[i] + beta * p[i]
         p[i] = pi
         q[i] = a * mass[i] * pi
-
-
-@ti.kernel
-def _free_dot(u: vec3_array, w: vec3_array, inv_mass: scalar_array, serial: ti.template()) -> float:
-    s = 0.0
-    ti.loop_config(serialize=serial)
-    for i in range(u.shape[0]):
-        if inv_mass[i] > 0.0:
-            s += u[i].dot(w[i])
-    return s
 
 
 @ti.kernel
@@ -379,13 +354,6 @@ def _pcg_whole_serial(beta0: float, rz0: float, target2: float, max_iter: ti.i32
     return ti.math.vec3(it, rr, bad)
 
 
-@ti.kernel
-def _zero_pinned(a: vec3_array, inv_mass: scalar_array):
-    for i in range(a.shape[0]):
-        if inv_mass[i] == 0.0:
-            a[i] = ti.math.vec3(0.0)
-
-
 # --------------------------------------------------------------------------------------------
 # Kernels: sparse assembly (one triplet per nonzero of every block; duplicates are summed)
 # --------------------------------------------------------------------------------------------
@@ -473,7 +441,7 @@ def _hessian_plan(model: Model, x, psd: bool = True, extra=None):
         def add_extra(p, q):
             zero_vec3(t)
             model.add_hessian_product(x2, p, t, True)
-            _axpy_inplace(q, t, s)
+            axpy_inplace(q, t, s)
         plan.append(add_extra)
     for e in model.energies:
         if hasattr(e, "add_block_product") and hasattr(e, "hessian_blocks"):
@@ -697,7 +665,7 @@ class PCGSolver(LinearSolver):
                     _pcg_direction(beta, z, p, mass, a_s, q, serial)  # p = z + beta p ; q = a' M p
                     for add in plan:                          # q += H p
                         add(p, q)
-                    pq = _free_dot(p, q, inv_mass, serial)
+                    pq = free_dot(p, q, inv_mass, serial)
                 if not (pq > 0.0):
                     message = f"A is not positive definite on the search direction (p.Ap = {pq:.3e})"
                     break
@@ -712,7 +680,7 @@ class PCGSolver(LinearSolver):
             if residual <= self.tol or it >= self.max_iter or message:
                 break
             rz, rr = _pcg_restart(b, q, inv_mass, c, Pinv, mass, a_s, r, z, p)
-        _zero_pinned(y, inv_mass)
+        zero_pinned(y, inv_mass)
         return self._info(it, residual, message)
 
 

@@ -19,68 +19,15 @@ from typing import NamedTuple, Sequence
 import numpy as np
 import taichi as ti
 
-from engine import runtime
-
-# Kernel argument annotations (plain annotation objects; creating them needs no ti.init).
-vec3_array = ti.types.ndarray(dtype=ti.math.vec3, ndim=1)
-scalar_array = ti.types.ndarray(ndim=1)
-
-
-class ModelError(ValueError):
-    """Invalid model input; the message is one line and names the offending element."""
-
-
-def float_dtype() -> type:
-    """The numpy float type matching Taichi's ``default_fp`` (f64 normally, f32 for benchmarks)."""
-    info = runtime.current()
-    if info is None:
-        raise RuntimeError("Taichi is not initialised: call engine.runtime.init() before building a Model")
-    return np.float64 if info.fp == 64 else np.float32
-
-
-def vec3_ndarray(n: int, values: np.ndarray | None = None):
-    """A ``ti.ndarray`` of ``n`` vec3 (default_fp), zero-filled or copied from ``values`` (n, 3)."""
-    a = ti.ndarray(dtype=ti.math.vec3, shape=max(int(n), 1))
-    if values is None:
-        a.from_numpy(np.zeros((max(int(n), 1), 3), dtype=float_dtype()))
-    else:
-        a.from_numpy(np.ascontiguousarray(values, dtype=float_dtype()).reshape(-1, 3))
-    return a
-
-
-def scalar_ndarray(values: np.ndarray):
-    """A ``ti.ndarray`` of default_fp scalars copied from ``values``."""
-    values = np.ascontiguousarray(values, dtype=float_dtype()).reshape(-1)
-    a = ti.ndarray(dtype=float, shape=max(values.size, 1))
-    if values.size:
-        a.from_numpy(values)
-    return a
-
-
-def int_ndarray(values: np.ndarray):
-    """A ``ti.ndarray`` of i32 copied from ``values``."""
-    values = np.ascontiguousarray(values, dtype=np.int32).reshape(-1)
-    a = ti.ndarray(dtype=ti.i32, shape=max(values.size, 1))
-    if values.size:
-        a.from_numpy(values)
-    return a
+from engine.energies.base import Energy
+from engine.energies.springs import SpringEnergy
+from engine.errors import ModelError
+from engine.fields import copy_vec3, float_dtype, scalar_array, scalar_ndarray, vec3_array, vec3_ndarray, zero_vec3
 
 
 # --------------------------------------------------------------------------------------------
-# Kernels shared by the model and the integrators
+# Kernels of the model's own terms (gravity, pins)
 # --------------------------------------------------------------------------------------------
-
-@ti.kernel
-def fill_vec3(a: vec3_array, value: ti.math.vec3):
-    for i in range(a.shape[0]):
-        a[i] = value
-
-
-@ti.kernel
-def zero_vec3(a: vec3_array):
-    for i in range(a.shape[0]):
-        a[i] = ti.math.vec3(0.0)
-
 
 @ti.kernel
 def gravity_energy_kernel(x: vec3_array, mass: scalar_array, inv_mass: scalar_array,
@@ -101,93 +48,6 @@ def finish_forces_kernel(f: vec3_array, mass: scalar_array, inv_mass: scalar_arr
             f[i] += mass[i] * g
         else:
             f[i] = ti.math.vec3(0.0)
-
-
-@ti.kernel
-def zero_pinned_kernel(a: vec3_array, inv_mass: scalar_array):
-    for i in range(a.shape[0]):
-        if inv_mass[i] == 0.0:
-            a[i] = ti.math.vec3(0.0)
-
-
-@ti.kernel
-def copy_vec3(src: vec3_array, dst: vec3_array):
-    for i in range(src.shape[0]):
-        dst[i] = src[i]
-
-
-@ti.kernel
-def axpy_into(x: vec3_array, dx: vec3_array, s: float, out: vec3_array):
-    # out = x + s dx
-    for i in range(x.shape[0]):
-        out[i] = x[i] + s * dx[i]
-
-
-@ti.kernel
-def dot_vec3(a: vec3_array, b: vec3_array) -> float:
-    # sum_i a_i . b_i over every vertex
-    s = 0.0
-    for i in range(a.shape[0]):
-        s += a[i].dot(b[i])
-    return s
-
-
-# --------------------------------------------------------------------------------------------
-# Energy protocol
-# --------------------------------------------------------------------------------------------
-
-class Energy:
-    """Protocol for an elastic energy W(x) over the model's vertices.
-
-    Energy is the single source of truth: forces are ``-grad W`` and implicit integrators
-    use the Hessian of the same W.  Subclasses implement the first four methods with
-    Taichi kernels; ``x``, ``dx``, ``f``, ``out`` are ``ti.ndarray`` of vec3 with one entry
-    per model vertex.  Pins are handled by the model/integrators, not by energies.
-    """
-
-    name = "energy"
-    n_vertices: int = 0
-
-    def energy(self, x) -> float:
-        """W(x)."""
-        raise NotImplementedError
-
-    def add_forces(self, x, f) -> None:
-        """f += -dW/dx (deterministic: no parallel float atomics)."""
-        raise NotImplementedError
-
-    def add_hessian_product(self, x, dx, out, psd: bool = True) -> None:
-        """out += H(x) dx, with H the exact Hessian or (psd=True) its PSD projection."""
-        raise NotImplementedError
-
-    def hessian_blocks(self, x, psd: bool = True):
-        """Per-element Hessian blocks (energy-specific layout; documented by the subclass)."""
-        raise NotImplementedError
-
-    def add_hessian_diagonal(self, x, diag, psd: bool = True) -> None:
-        """diag[i] += H_ii (3x3 vertex diagonal blocks, a mat3 ndarray) for block-Jacobi."""
-        raise NotImplementedError(f"{type(self).__name__} has no Hessian diagonal")
-
-    def gershgorin_row_sums(self, x) -> np.ndarray:
-        """(n, 3) numpy array: sum_j |H_(i,a),j| of the exact Hessian at x (for the CFL bound)."""
-        raise NotImplementedError(f"{type(self).__name__} has no Gershgorin bound")
-
-    def dense_hessian(self, x, psd: bool = True) -> np.ndarray:
-        """Dense (3n, 3n) Hessian in numpy, for tests on small models.
-
-        Default: one Hessian-vector product per unit vector (3n products)."""
-        n = self.n_vertices
-        H = np.zeros((3 * n, 3 * n))
-        dx = vec3_ndarray(n)
-        out = vec3_ndarray(n)
-        for col in range(3 * n):
-            e = np.zeros((n, 3))
-            e.reshape(-1)[col] = 1.0
-            dx.from_numpy(e.astype(float_dtype()))
-            zero_vec3(out)
-            self.add_hessian_product(x, dx, out, psd)
-            H[:, col] = out.to_numpy().reshape(-1)
-        return H
 
 
 # --------------------------------------------------------------------------------------------
@@ -342,8 +202,6 @@ class Model:
           k  spring constant(s) of the notes' 1D spring W = 1/2 k (l/L - 1)^2 L  -> c = k L
           c  per-edge coefficient(s) directly, e.g. c = E A_e for area/volume springs.
         L: rest lengths (m,), default |X_i - X_j|."""
-        from engine.energies.springs import SpringEnergy
-
         X = cls.check_inputs(X, mass, pinned, gravity)[0]
         edges, L, c, name = SpringEnergy.prepare(X, edges, k=k, c=c, L=L)  # numpy checks before any kernel
         model = cls(X, mass=mass, pinned=pinned, gravity=gravity)
@@ -359,7 +217,6 @@ class Model:
     @property
     def springs(self):
         """The first spring energy, or None."""
-        from engine.energies.springs import SpringEnergy
         return next((e for e in self.energies if isinstance(e, SpringEnergy)), None)
 
     # -- state and work arrays ---------------------------------------------------------------

@@ -11,10 +11,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from engine import mesh as meshes
+from engine.constants import G
 from engine.energies.bending import BendingEnergy
 from engine.model import Model
-
-G = 9.81  # m/s^2
 
 
 @dataclass

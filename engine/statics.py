@@ -65,8 +65,9 @@ import taichi as ti
 from engine.errors import ParameterError
 from engine.integrators.explicit import gershgorin_lambda_max, lambda_max_power
 from engine.linalg import SOLVERS, SolverError, make_solver
-from engine.model import (Model, axpy_into, copy_vec3, dot_vec3, float_dtype, scalar_array, vec3_array, vec3_ndarray,
-                          zero_vec3)
+from engine.fields import (axpy_into, copy_vec3, dot_vec3, float_dtype, mass_dot, scalar_array, vec3_array,
+                           vec3_ndarray, zero_vec3)
+from engine.model import Model
 
 __all__ = ["StaticResult", "solve_static"]
 
@@ -106,15 +107,6 @@ def _gravity_work(x: vec3_array, xref: vec3_array, mass: scalar_array, inv_mass:
     for i in range(x.shape[0]):
         if inv_mass[i] > 0.0:
             s += mass[i] * g.dot(x[i] - xref[i])
-    return s
-
-
-@ti.kernel
-def _mass_norm2(a: vec3_array, mass: scalar_array, inv_mass: scalar_array) -> float:
-    s = 0.0
-    for i in range(a.shape[0]):
-        if inv_mass[i] > 0.0:
-            s += mass[i] * a[i].dot(a[i])
     return s
 
 
@@ -177,7 +169,7 @@ def solve_static(model: Model, x0=None, tol: float = 1e-10, max_iter: int = 100,
         return r, fe
 
     def mass_norm2(a) -> float:
-        return _mass_norm2(a, model.mass_nd, model.inv_mass_nd)
+        return mass_dot(a, a, model.mass_nd, model.inv_mass_nd)
 
     def potential(xa) -> float:
         Pi = model.elastic_energy(xa)

@@ -13,7 +13,9 @@ import pytest
 
 from engine.energies import bending as bm
 from engine.energies.bending import BendingEnergy, BendingError, VARIANTS
-from engine.model import Energy, ModelError, vec3_ndarray
+from engine.energies.base import Energy
+from engine.errors import ModelError
+from engine.fields import vec3_ndarray
 
 # --------------------------------------------------------------------------------------------
 # helpers

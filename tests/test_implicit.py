@@ -46,13 +46,13 @@ def cloth(N=6, E=500.0, B=0.05):
 
 def dense_K(model, x):
     """-(PSD Hessian) as a dense matrix (df/dx of Baraff & Witkin, with the PSD projection)."""
-    from engine.model import vec3_ndarray
+    from engine.fields import vec3_ndarray
     return -model.dense_hessian(vec3_ndarray(model.n, x), psd=True)
 
 
 def numpy_forces(model, x):
     """-grad W + M g on free vertices, zero on pinned (numpy, from the model's force kernel)."""
-    from engine.model import vec3_ndarray
+    from engine.fields import vec3_ndarray
     f = vec3_ndarray(model.n)
     model.forces(vec3_ndarray(model.n, x), f)
     return f.to_numpy().astype(np.float64)
@@ -203,7 +203,7 @@ def test_mode_energy_decays_by_one_over_one_plus_w2dt2(solver):
     X = np.zeros((N, 3))
     X[:, 0] = np.arange(N) * h
     model = Model.from_springs(X, np.stack([np.arange(N - 1), np.arange(1, N)], 1), k=k, mass=m, pinned=[0, N - 1])
-    from engine.model import vec3_ndarray
+    from engine.fields import vec3_ndarray
     H = model.dense_hessian(vec3_ndarray(N, X), psd=False)
     xdofs = 3 * np.flatnonzero(model.free)
     w2, V = np.linalg.eigh(H[np.ix_(xdofs, xdofs)] / m)

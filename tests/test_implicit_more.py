@@ -22,7 +22,8 @@ from engine import diagnostics
 from engine.integrators import BackwardEuler, SolverError, get, make_integrator
 from engine.integrators.explicit import lambda_max_power
 from engine.linalg import make_solver
-from engine.model import Model, vec3_ndarray
+from engine.fields import vec3_ndarray
+from engine.model import Model
 from engine.scenes import cloth
 
 SOLVERS = ["pcg", "cholesky"]

@@ -10,7 +10,8 @@ from engine import linalg, mesh
 from engine.energies.bending import BendingEnergy
 from engine.energies.springs import SpringEnergy
 from engine.linalg import SolverError, make_solver
-from engine.model import Model, vec3_ndarray
+from engine.fields import vec3_ndarray
+from engine.model import Model
 
 
 def spring_network(seed=0):

@@ -26,7 +26,8 @@ from hypothesis import HealthCheck, assume, given, settings, strategies as st
 
 from engine import mesh as meshes
 from engine.energies.bending import VARIANTS, BendingEnergy
-from engine.model import Model, vec3_ndarray, zero_vec3
+from engine.fields import vec3_ndarray, zero_vec3
+from engine.model import Model
 
 ENERGIES = ("springs",) + VARIANTS
 SETTINGS = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow], print_blob=True)

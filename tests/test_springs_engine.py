@@ -11,7 +11,9 @@ import scipy.linalg as sla
 from engine import diagnostics
 from engine.energies.springs import SpringEnergy, dense_hessian_from_blocks
 from engine.integrators.explicit import gershgorin_lambda_max, lambda_max_power, stable_dt_estimate
-from engine.model import Model, ModelError, State, vec3_ndarray
+from engine.errors import ModelError
+from engine.fields import vec3_ndarray
+from engine.model import Model, State
 import taichi as ti
 
 
@@ -188,7 +190,7 @@ def test_hessian_vector_products_match_assembled_hessian(psd):
     ref_diag = np.array([H[3 * i:3 * i + 3, 3 * i:3 * i + 3] for i in range(len(X))])
     assert np.abs(diag.to_numpy() - ref_diag).max() < 1e-12 * np.abs(ref_diag).max()
     # the Energy base class's generic assembly (column by column) agrees with the block assembly
-    from engine.model import Energy
+    from engine.energies.base import Energy
     H_generic = Energy.dense_hessian(sp, nd(x), psd)
     assert np.abs(H_generic - H).max() < 1e-12 * np.abs(H).max()
 

@@ -7,7 +7,8 @@ from engine import mesh
 from engine.energies.bending import BendingEnergy
 from engine.energies.springs import SpringEnergy
 from engine.linalg import SolverError
-from engine.model import Model, vec3_ndarray
+from engine.fields import vec3_ndarray
+from engine.model import Model
 from engine.statics import solve_static
 
 

@@ -29,7 +29,8 @@ import pytest
 from engine import mesh as M
 from engine.energies.bending import BendingEnergy
 from engine.mesh import Mesh, MeshError
-from engine.model import Model, ModelError
+from engine.errors import ModelError
+from engine.model import Model
 from engine.recorder import summarize
 from lessons import cli, registry
 from lessons._framework import Stepping, _field_type, range_text

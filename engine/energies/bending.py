@@ -100,7 +100,11 @@ uniformly bent regular mesh it equals total energy / total area at interior vert
 import numpy as np
 import taichi as ti
 
-from engine.model import Energy, ModelError, fill_vec3, float_dtype, vec3_ndarray
+from engine.energies.base import Energy
+from engine.errors import ModelError
+from engine.fields import (float_dtype, int_array, mat3_array, mat3_array2, scalar_array, vec3_array, vec3_array2,
+                           vec3_ndarray)
+from engine.fields import int_array2 as hinge_array
 
 __all__ = [
     "BendingError", "BendingEnergy", "VARIANTS",
@@ -121,15 +125,6 @@ _MODE = {"notes": MODE_QUADRATIC, "bridson": MODE_HALF_ANGLE, "discrete-shells":
 class BendingError(ModelError):
     """Invalid bending input (a ValueError); one line naming the offending hinge/parameter."""
 
-
-# Kernel argument annotations (plain objects; no ti.init needed to create them).
-vec3_array = ti.types.ndarray(dtype=ti.math.vec3, ndim=1)
-vec3_array2 = ti.types.ndarray(dtype=ti.math.vec3, ndim=2)
-mat3_array = ti.types.ndarray(dtype=ti.math.mat3, ndim=1)
-mat3_array2 = ti.types.ndarray(dtype=ti.math.mat3, ndim=2)
-scalar_array = ti.types.ndarray(dtype=float, ndim=1)
-hinge_array = ti.types.ndarray(dtype=ti.i32, ndim=2)
-int_array = ti.types.ndarray(dtype=ti.i32, ndim=1)
 
 # Coefficients of P: (e, a0, a1) = P (x_v0, x_v1, x_w0, x_w1); row p, column slot.
 _P = ((-1, 1, 0, 0),   # e  = x_v1 - x_v0

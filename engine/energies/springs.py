@@ -40,12 +40,10 @@ gather streams through memory.
 import numpy as np
 import taichi as ti
 
-from engine.model import (Energy, ModelError, float_dtype, int_ndarray, scalar_array, scalar_ndarray,
-                          vec3_array)
-
-edge_array = ti.types.ndarray(dtype=ti.math.ivec2, ndim=1)
-int_array = ti.types.ndarray(dtype=ti.i32, ndim=1)
-mat3_array = ti.types.ndarray(dtype=ti.math.mat3, ndim=1)
+from engine.energies.base import Energy
+from engine.errors import ModelError
+from engine.fields import (edge_array, float_dtype, int_array, int_ndarray, mat3_array, scalar_array, scalar_ndarray,
+                           vec3_array)
 
 
 # --------------------------------------------------------------------------------------------

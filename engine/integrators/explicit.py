@@ -31,7 +31,8 @@ import numpy as np
 import taichi as ti
 
 from engine import diagnostics, errors
-from engine.model import Model, State, float_dtype, scalar_array, vec3_array, zero_vec3
+from engine.fields import float_dtype, free_dot, mass_dot, scalar_array, scale_vec3, vec3_array, zero_vec3
+from engine.model import Model, State
 
 
 class BlowUpError(errors.BlowUpError):
@@ -204,35 +205,10 @@ def gershgorin_lambda_max(model: Model, x=None) -> float:
 
 
 @ti.kernel
-def _mass_dot(a: vec3_array, b: vec3_array, mass: scalar_array, inv_mass: scalar_array) -> float:
-    # sum over free vertices of m_i a_i . b_i
-    s = 0.0
-    for i in range(a.shape[0]):
-        if inv_mass[i] > 0.0:
-            s += mass[i] * a[i].dot(b[i])
-    return s
-
-
-@ti.kernel
-def _free_dot(a: vec3_array, b: vec3_array, inv_mass: scalar_array) -> float:
-    s = 0.0
-    for i in range(a.shape[0]):
-        if inv_mass[i] > 0.0:
-            s += a[i].dot(b[i])
-    return s
-
-
-@ti.kernel
 def _minv_scale(y: vec3_array, u: vec3_array, inv_mass: scalar_array, scale: float):
     # u = scale M^-1 y on free vertices, 0 on pinned
     for i in range(y.shape[0]):
         u[i] = scale * inv_mass[i] * y[i]
-
-
-@ti.kernel
-def _scale(u: vec3_array, scale: float):
-    for i in range(u.shape[0]):
-        u[i] *= scale
 
 
 def lambda_max_power(model: Model, x=None, psd: bool = False, iters: int = 500, rtol: float = 1e-8,
@@ -248,18 +224,18 @@ def lambda_max_power(model: Model, x=None, psd: bool = False, iters: int = 500, 
     u0 = rng.standard_normal((model.n, 3))
     u0[model.pinned] = 0.0
     u.from_numpy(u0.astype(float_dtype()))
-    _scale(u, 1.0 / math.sqrt(_mass_dot(u, u, model.mass_nd, model.inv_mass_nd)))
+    scale_vec3(u, 1.0 / math.sqrt(mass_dot(u, u, model.mass_nd, model.inv_mass_nd)))
     lam_old = math.inf
     lam = 0.0
     for _ in range(int(iters)):
         zero_vec3(y)
         model.add_hessian_product(x, u, y, psd)
-        lam = _free_dot(u, y, model.inv_mass_nd)  # u.H u with u.M u = 1
+        lam = free_dot(u, y, model.inv_mass_nd, False)  # u.H u with u.M u = 1
         _minv_scale(y, u, model.inv_mass_nd, 1.0)
-        norm2 = _mass_dot(u, u, model.mass_nd, model.inv_mass_nd)
+        norm2 = mass_dot(u, u, model.mass_nd, model.inv_mass_nd)
         if norm2 == 0.0:
             return 0.0
-        _scale(u, 1.0 / math.sqrt(norm2))
+        scale_vec3(u, 1.0 / math.sqrt(norm2))
         if abs(lam - lam_old) <= rtol * abs(lam):
             break
         lam_old = lam

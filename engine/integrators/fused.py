@@ -32,9 +32,10 @@ import math
 import numpy as np
 import taichi as ti
 
-from engine.energies.springs import SpringEnergy, edge_array, int_array, spring_gather
+from engine.energies.springs import SpringEnergy, spring_gather
 from engine.integrators.explicit import BlowUpError, _blowup_message, stable_dt_estimate
-from engine.model import Model, State, scalar_array, vec3_array
+from engine.fields import edge_array, int_array, scalar_array, vec3_array
+from engine.model import Model, State
 
 FORWARD_EULER, SYMPLECTIC_EULER, VELOCITY_VERLET = 0, 1, 2
 METHODS = {"forward-euler": FORWARD_EULER, "symplectic-euler": SYMPLECTIC_EULER,

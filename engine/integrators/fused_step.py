@@ -16,10 +16,10 @@ bending), so both give bitwise the same states; a test checks it.
 
 import taichi as ti
 
-from engine.energies.bending import (BendingEnergy, hinge_array, hinge_force_vectors, hinge_gather, int_array,
-                                     vec3_array2)
+from engine.energies.bending import BendingEnergy, hinge_force_vectors, hinge_gather
 from engine.energies.springs import SpringEnergy, spring_gather
-from engine.model import scalar_array, vec3_array
+from engine.fields import int_array, scalar_array, vec3_array, vec3_array2
+from engine.fields import int_array2 as hinge_array
 
 
 @ti.kernel

@@ -54,7 +54,8 @@ import taichi as ti
 
 from engine.errors import ParameterError
 from engine.linalg import SOLVERS, LinearSolver, SolverError, make_solver
-from engine.model import Model, State, axpy_into, copy_vec3, dot_vec3, scalar_array, vec3_array, zero_vec3
+from engine.fields import axpy_into, copy_vec3, dot_vec3, scalar_array, sub_into, vec3_array, zero_vec3
+from engine.model import Model, State
 
 ARMIJO_C1 = 1e-4
 MAX_BACKTRACKS = 30
@@ -115,12 +116,6 @@ def _be_inertia(x: vec3_array, xn: vec3_array, v: vec3_array, mass: scalar_array
             e = d - dt * v[i]
             s += mass[i] * (0.5 * inv_dt2 * e.dot(e) + 0.5 * alpha_over_dt * d.dot(d) - g.dot(d))
     return s
-
-
-@ti.kernel
-def _sub_into(a: vec3_array, b: vec3_array, out: vec3_array):
-    for i in range(a.shape[0]):
-        out[i] = a[i] - b[i]
 
 
 @ti.kernel
@@ -229,7 +224,7 @@ class BackwardEuler:
         phi += model.elastic_energy(x) - W_n
         if self.rayleigh_beta > 0.0:
             d, hq = work["d"], work["hq"]
-            _sub_into(x, xn, d)
+            sub_into(x, xn, d)
             zero_vec3(hq)
             model.add_hessian_product(xn, d, hq, True)
             phi += 0.5 * self.rayleigh_beta / dt * dot_vec3(d, hq)
@@ -263,7 +258,7 @@ class BackwardEuler:
             g2 = _be_residual(x, xn, v, f, model.mass_nd, inv_mass, inv_dt2, a_dt, dt, rhs)
             if self.rayleigh_beta > 0.0 and k > 0:
                 d, hq = work["d"], work["hq"]
-                _sub_into(x, xn, d)
+                sub_into(x, xn, d)
                 zero_vec3(hq)
                 model.add_hessian_product(xn, d, hq, True)
                 g2 = _be_add_scaled(rhs, hq, self.rayleigh_beta / dt, inv_mass)

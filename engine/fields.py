@@ -1,0 +1,140 @@
+"""Taichi array types and the small per-vertex kernels that every engine module shares.
+
+Kernel argument annotations are plain objects (creating them needs no ``ti.init``); the
+ndarray constructors and kernels need :func:`engine.runtime.init` first. Every engine kernel
+takes ``ti.ndarray`` arguments, so it compiles once for all sizes.
+
+Conventions: a vec3 array has one entry per model vertex; ``inv_mass`` is 0 on pinned
+vertices (they never move and carry no unknowns), so "free" reductions skip them.
+"""
+import numpy as np
+import taichi as ti
+
+from engine import runtime
+
+# -- kernel argument annotations -----------------------------------------------------------
+vec3_array = ti.types.ndarray(dtype=ti.math.vec3, ndim=1)
+vec3_array2 = ti.types.ndarray(dtype=ti.math.vec3, ndim=2)
+mat3_array = ti.types.ndarray(dtype=ti.math.mat3, ndim=1)
+mat3_array2 = ti.types.ndarray(dtype=ti.math.mat3, ndim=2)
+scalar_array = ti.types.ndarray(ndim=1)
+int_array = ti.types.ndarray(dtype=ti.i32, ndim=1)
+int_array2 = ti.types.ndarray(dtype=ti.i32, ndim=2)
+edge_array = ti.types.ndarray(dtype=ti.math.ivec2, ndim=1)
+
+
+# -- ndarray constructors --------------------------------------------------------------------
+
+def float_dtype() -> type:
+    """The numpy float type matching Taichi's ``default_fp`` (f64 normally, f32 for benchmarks)."""
+    info = runtime.current()
+    if info is None:
+        raise RuntimeError("Taichi is not initialised: call engine.runtime.init() before building a Model")
+    return np.float64 if info.fp == 64 else np.float32
+
+
+def vec3_ndarray(n: int, values: np.ndarray | None = None):
+    """A ``ti.ndarray`` of ``n`` vec3 (default_fp), zero-filled or copied from ``values`` (n, 3)."""
+    a = ti.ndarray(dtype=ti.math.vec3, shape=max(int(n), 1))
+    if values is None:
+        a.from_numpy(np.zeros((max(int(n), 1), 3), dtype=float_dtype()))
+    else:
+        a.from_numpy(np.ascontiguousarray(values, dtype=float_dtype()).reshape(-1, 3))
+    return a
+
+
+def scalar_ndarray(values: np.ndarray):
+    """A ``ti.ndarray`` of default_fp scalars copied from ``values``."""
+    values = np.ascontiguousarray(values, dtype=float_dtype()).reshape(-1)
+    a = ti.ndarray(dtype=float, shape=max(values.size, 1))
+    if values.size:
+        a.from_numpy(values)
+    return a
+
+
+def int_ndarray(values: np.ndarray):
+    """A ``ti.ndarray`` of i32 copied from ``values`` (any shape; an empty array becomes one zero)."""
+    values = np.ascontiguousarray(values, dtype=np.int32)
+    shape = values.shape if values.size else (1,) + values.shape[1:]
+    a = ti.ndarray(dtype=ti.i32, shape=shape if len(shape) > 1 else shape[0])
+    if values.size:
+        a.from_numpy(values)
+    return a
+
+
+# -- small per-vertex kernels ------------------------------------------------------------------
+
+@ti.kernel
+def zero_vec3(a: vec3_array):
+    for i in range(a.shape[0]):
+        a[i] = ti.math.vec3(0.0)
+
+
+@ti.kernel
+def copy_vec3(src: vec3_array, dst: vec3_array):
+    for i in range(src.shape[0]):
+        dst[i] = src[i]
+
+
+@ti.kernel
+def scale_vec3(u: vec3_array, scale: float):
+    for i in range(u.shape[0]):
+        u[i] *= scale
+
+
+@ti.kernel
+def axpy_into(x: vec3_array, dx: vec3_array, s: float, out: vec3_array):
+    # out = x + s dx
+    for i in range(x.shape[0]):
+        out[i] = x[i] + s * dx[i]
+
+
+@ti.kernel
+def axpy_inplace(q: vec3_array, t: vec3_array, s: float):
+    # q += s t
+    for i in range(q.shape[0]):
+        q[i] += s * t[i]
+
+
+@ti.kernel
+def sub_into(a: vec3_array, b: vec3_array, out: vec3_array):
+    # out = a - b
+    for i in range(a.shape[0]):
+        out[i] = a[i] - b[i]
+
+
+@ti.kernel
+def dot_vec3(a: vec3_array, b: vec3_array) -> float:
+    # sum_i a_i . b_i over every vertex
+    s = 0.0
+    for i in range(a.shape[0]):
+        s += a[i].dot(b[i])
+    return s
+
+
+@ti.kernel
+def free_dot(u: vec3_array, w: vec3_array, inv_mass: scalar_array, serial: ti.template()) -> float:
+    # sum over free vertices of u_i . w_i
+    s = 0.0
+    ti.loop_config(serialize=serial)
+    for i in range(u.shape[0]):
+        if inv_mass[i] > 0.0:
+            s += u[i].dot(w[i])
+    return s
+
+
+@ti.kernel
+def mass_dot(a: vec3_array, b: vec3_array, mass: scalar_array, inv_mass: scalar_array) -> float:
+    # sum over free vertices of m_i a_i . b_i
+    s = 0.0
+    for i in range(a.shape[0]):
+        if inv_mass[i] > 0.0:
+            s += mass[i] * a[i].dot(b[i])
+    return s
+
+
+@ti.kernel
+def zero_pinned(a: vec3_array, inv_mass: scalar_array):
+    for i in range(a.shape[0]):
+        if inv_mass[i] == 0.0:
+            a[i] = ti.math.vec3(0.0)
