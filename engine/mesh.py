@@ -17,7 +17,8 @@ Topology and rest quantities are functions of the mesh and also cached propertie
 
 - ``edges``: unique undirected edges (m, 2), i < j, sorted lexicographically.
 - ``csr_incidence``: per-vertex lists of incident edges, for a deterministic gather of
-  edge forces (DESIGN section 4: a CSR gather beats atomics and is reproducible).
+  edge forces (a gather sums in a fixed order, so it is reproducible, and on the CPU it is
+  faster than parallel float atomics).
 - ``hinges``: interior edges of a triangle mesh with their two wing vertices, for the
   dihedral bending energy (notes, "Dihedral angle bending"; Grinspun et al. 2003;
   Bridson et al. 2003). Columns ``[v0, v1, w0, w1]``: the shared edge is (v0, v1) with
@@ -45,6 +46,8 @@ import math
 from typing import NamedTuple
 
 import numpy as np
+
+from engine import geometry
 
 __all__ = [
     "MeshError", "Mesh", "Incidence",
@@ -576,17 +579,12 @@ def csr_incidence(n_vertices: int, edges) -> Incidence:
     """
     E = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
     m = len(E)
-    ends = np.concatenate([E[:, 0], E[:, 1]])
-    other = np.concatenate([E[:, 1], E[:, 0]])
-    eid = np.concatenate([np.arange(m), np.arange(m)])
-    if m and (ends.min() < 0 or ends.max() >= n_vertices):
-        bad = int(np.flatnonzero((ends < 0) | (ends >= n_vertices))[0] % m)
+    if m and (E.min() < 0 or E.max() >= n_vertices):
+        bad = int(np.flatnonzero(((E < 0) | (E >= n_vertices)).any(axis=1))[0])
         raise MeshError(f"edge {bad} ({E[bad, 0]}, {E[bad, 1]}) has an index outside the valid "
                         f"range 0..{n_vertices - 1}")
-    order = np.lexsort((eid, ends))
-    offsets = np.zeros(n_vertices + 1, dtype=np.int64)
-    np.cumsum(np.bincount(ends, minlength=n_vertices), out=offsets[1:])
-    return Incidence(_readonly(offsets), _readonly(eid[order]), _readonly(other[order]))
+    offsets, eid, other = geometry.edge_incidence(n_vertices, E, by="edge")
+    return Incidence(_readonly(offsets), _readonly(eid), _readonly(other))
 
 
 def _compute_hinges(mesh: Mesh):
@@ -772,37 +770,18 @@ def lumped_masses(mesh: Mesh, rho: float) -> np.ndarray:
 
 def hinge_heights(X, hinges) -> np.ndarray:
     """(h, 2) heights [h0, h1] (m) of the wing vertices w0, w1 over the line of the hinge
-    edge (v0, v1) (columns of ``hinges``), in 2D or 3D: h = |e x (w - x_v0)| / |e|. The
+    edge (v0, v1) (columns of ``hinges``), in 2D or 3D (engine.geometry.hinge_geometry). The
     notes' bending area is A_e = |e| (h0 + h1) / 6."""
-    X = np.asarray(X, dtype=np.float64)
-    H = np.asarray(hinges)
-    x0 = X[H[:, 0]]
-    e = X[H[:, 1]] - x0
-    le = np.linalg.norm(e, axis=1)
-    h0 = _cross_norm(e, X[H[:, 2]] - x0) / le
-    h1 = _cross_norm(e, X[H[:, 3]] - x0) / le
-    return np.stack([h0, h1], axis=1)
+    g = geometry.hinge_geometry(X, hinges)
+    return np.stack([g["h0"], g["h1"]], axis=1)
 
 
 def dihedral_angles(X, hinges) -> np.ndarray:
-    """(h,) signed dihedral angles theta (rad) at the hinges: the angle between the normals
-    n0 = e x (x_w0 - x_v0) of t0 and n1 = (x_v0 - x_v1) x (x_w1 - x_v1) of t1, e = x_v1 -
-    x_v0, theta = atan2(e_hat . (n0 x n1), n0 . n1). Zero when flat; positive where the
-    surface is convex on the side its normals point to (e.g. the outward-oriented
-    :func:`cylinder_wrap`), negative where it is concave. 2D input gives zeros. A numpy
-    reference for rest angles of curved rest shapes."""
-    X = np.asarray(X, dtype=np.float64)
-    if X.shape[1] == 2:
-        X = np.concatenate([X, np.zeros((len(X), 1))], axis=1)
-    H = np.asarray(hinges)
-    xv0, xv1, xw0, xw1 = (X[H[:, k]] for k in range(4))
-    e = xv1 - xv0
-    n0 = np.cross(e, xw0 - xv0)
-    n1 = np.cross(xv0 - xv1, xw1 - xv1)
-    e_hat = e / np.linalg.norm(e, axis=1, keepdims=True)
-    sin_part = np.einsum("ij,ij->i", e_hat, np.cross(n0, n1))
-    cos_part = np.einsum("ij,ij->i", n0, n1)
-    return np.arctan2(sin_part, cos_part)
+    """(h,) signed dihedral angles theta (rad) at the hinges (engine.geometry.dihedral_angles):
+    zero when flat; positive where the surface is convex on the side its normals point to (e.g.
+    the outward-oriented :func:`cylinder_wrap`), negative where it is concave. 2D input gives
+    zeros. A numpy reference for rest angles of curved rest shapes."""
+    return geometry.dihedral_angles(X, hinges)
 
 
 # ======================================================================================

@@ -49,7 +49,7 @@ including the weight of the pinned vertex itself, so that at equilibrium sum_i R
 summed over all vertices = the total weight (net internal force is zero by translation
 invariance).
 
-Reference (DESIGN section 6): a vertical chain of springs with lumped masses, c = E h (k = E,
+Reference: a vertical chain of springs with lumped masses, c = E h (k = E,
 1D spring of the notes), hanging from its top has the node displacements
 u(p) = (rho g / E)(L p - p^2/2) exactly: segment j carries the weight below its lower node,
 rho g (L - p_{j+1/2}), so its strain is rho g (L - p_{j+1/2})/E and summing h times the strains

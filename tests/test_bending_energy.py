@@ -11,6 +11,7 @@ import math
 import numpy as np
 import pytest
 
+from engine import geometry
 from engine.energies import bending as bm
 from engine.energies.bending import BendingEnergy, BendingError, VARIANTS
 from engine.energies.base import Energy
@@ -163,7 +164,7 @@ def test_theta_matches_analytic_hinge_over_minus_pi_to_pi():
     theta = E.angles(X)
     err = np.abs(theta - np.array(ANGLES))
     assert err.max() < 1e-13, err.max()  # measured ~4e-16: atan2 keeps full precision near +-pi
-    assert np.abs(theta - bm.dihedral_angles_numpy(X, H)).max() < 1e-14
+    assert np.abs(theta - geometry.dihedral_angles(X, H)).max() < 1e-14
 
 
 def test_theta_sign_convention():

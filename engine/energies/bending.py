@@ -32,7 +32,7 @@ with A0 + A1 = |e| (h0 + h1) / 2):
 (K2) is Discrete Shells' weight with its constant chosen so that B is the same bending
 modulus: on a cylinder of radius R it converges to the continuum 1/2 B (1/(2R))^2 * area,
 while (K1) converges to one third of it (only the edges across the bend carry curvature
-but A_e gives each edge a third of its triangles' area; DESIGN section 6).
+but A_e gives each edge a third of its triangles' area).
 
 The "bridson" variant: (W2) has the force  -dW/dx = 2 k_e sin(d/2) u  with u = -grad theta
 equal to Bridson's u_1..u_4.  With theta_bar = 0 and k_e from (K1) that is exactly Bridson's
@@ -100,6 +100,7 @@ uniformly bent regular mesh it equals total energy / total area at interior vert
 import numpy as np
 import taichi as ti
 
+from engine import geometry
 from engine.energies.base import Energy
 from engine.errors import ModelError
 from engine.fields import (float_dtype, int_array, mat3_array, mat3_array2, scalar_array, vec3_array, vec3_array2,
@@ -112,7 +113,7 @@ __all__ = [
     "hinge_energies_kernel", "bending_energy_kernel", "hinge_forces_kernel",
     "hinge_hessian_blocks_kernel", "hinge_hessian_products_kernel", "hinge_hessian_diagonal_kernel",
     "gather_hinge_vectors_kernel", "gather_hinge_diagonal_kernel",
-    "rest_geometry", "dihedral_angles_numpy", "hinge_stiffness", "build_hinge_incidence",
+    "hinge_stiffness",
     "dense_hessian_from_hinge_blocks", "scatter_hinge_vectors_numpy", "validate_hinges",
 ]
 
@@ -443,45 +444,6 @@ def gather_hinge_diagonal_kernel(dh: mat3_array2, offsets: int_array, entries: i
 # numpy set-up helpers (rest quantities, validation, incidence, test references)
 # --------------------------------------------------------------------------------------------
 
-def _as_points3(X) -> np.ndarray:
-    if hasattr(X, "to_numpy") and not isinstance(X, np.ndarray):
-        X = X.to_numpy()
-    X = np.asarray(X, dtype=np.float64)
-    if X.ndim == 2 and X.shape[1] == 2:
-        X = np.concatenate([X, np.zeros((len(X), 1))], axis=1)
-    if X.ndim != 2 or X.shape[1] != 3:
-        raise BendingError(f"rest positions must have shape (n, 3), got {X.shape}")
-    return X
-
-
-def rest_geometry(X, hinges) -> dict:
-    """Rest quantities per hinge (float64 arrays): ``edge_length`` |e|, ``h0``, ``h1`` (wing
-    heights over the edge), ``A0``, ``A1`` (wing triangle areas), ``A_e`` = |e|(h0+h1)/6."""
-    X = _as_points3(X)
-    H = np.asarray(hinges, dtype=np.int64).reshape(-1, 4)
-    xv0, xv1, xw0, xw1 = (X[H[:, k]] for k in range(4))
-    e = xv1 - xv0
-    L = np.linalg.norm(e, axis=1)
-    A0 = 0.5 * np.linalg.norm(np.cross(e, xw0 - xv0), axis=1)
-    A1 = 0.5 * np.linalg.norm(np.cross(xv0 - xv1, xw1 - xv1), axis=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        h0 = 2.0 * A0 / L
-        h1 = 2.0 * A1 / L
-    return dict(edge_length=L, h0=h0, h1=h1, A0=A0, A1=A1, A_e=L * (h0 + h1) / 6.0)
-
-
-def dihedral_angles_numpy(X, hinges) -> np.ndarray:
-    """(A1) in numpy (float64): reference for the kernel and for ``from_rest`` rest angles."""
-    X = _as_points3(X)
-    H = np.asarray(hinges, dtype=np.int64).reshape(-1, 4)
-    xv0, xv1, xw0, xw1 = (X[H[:, k]] for k in range(4))
-    e = xv1 - xv0
-    N0 = np.cross(e, xw0 - xv0)
-    N1 = np.cross(xw1 - xv0, e)
-    sin_part = np.einsum("ij,ij->i", np.cross(N0, N1), e) / np.linalg.norm(e, axis=1)
-    return np.arctan2(sin_part, np.einsum("ij,ij->i", N0, N1))
-
-
 def hinge_stiffness(variant: str, B, geometry: dict) -> np.ndarray:
     """k_e per hinge: (K1) for "notes" and "bridson", (K2) for "discrete-shells"."""
     if variant not in VARIANTS:
@@ -502,7 +464,7 @@ def validate_hinges(X, hinges, B=None, theta_bar=None, rel_tol: float = 1e-12) -
     Checks: shape; indices in 0..n-1; four distinct vertices; finite rest positions of the
     hinge vertices; each wing triangle t0 = (v0, v1, w0), t1 = (v1, v0, w1) of non-zero area
     (2 * area > rel_tol * longest side^2); B finite and >= 0; theta_bar finite."""
-    X = _as_points3(X)
+    X = geometry.as_points3(X, BendingError)
     n = len(X)
     H = np.asarray(hinges)
     if H.size == 0:
@@ -557,16 +519,6 @@ def validate_hinges(X, hinges, B=None, theta_bar=None, rel_tol: float = 1e-12) -
     return H
 
 
-def build_hinge_incidence(n: int, hinges: np.ndarray):
-    """CSR vertex -> hinge slots: ``offsets`` (n+1,) and ``entries`` (4h,) with entry =
-    4*hinge + slot, in increasing hinge order per vertex."""
-    flat = np.asarray(hinges, dtype=np.int64).reshape(-1)
-    order = np.argsort(flat, kind="stable")
-    counts = np.bincount(flat, minlength=n)
-    offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-    return offsets, order.astype(np.int64)
-
-
 def scatter_hinge_vectors_numpy(n: int, hinges: np.ndarray, vh: np.ndarray) -> np.ndarray:
     """Reference scatter: out[v] = sum of vh[h, slot] over (h, slot) with hinges[h, slot] = v."""
     out = np.zeros((n, 3))
@@ -604,7 +556,7 @@ class BendingEnergy(Energy):
     Protocol (engine.model.Energy): x, f, dx, out are vec3 ndarrays with one entry per vertex
     (numpy (n, 3) arrays are also accepted; a numpy f/out is updated in place).
     Attributes (numpy, float64): ``hinges_np``, ``k`` (k_e), ``theta_bar``, ``geometry``
-    (rest_geometry dict), ``A_e``.
+    (engine.geometry.hinge_geometry dict), ``A_e``.
     """
 
     name = "bending"
@@ -613,7 +565,7 @@ class BendingEnergy(Energy):
                  from_rest: bool = False):
         if variant not in VARIANTS:
             raise BendingError(f"unknown bending variant {variant!r}; choose one of {', '.join(VARIANTS)}")
-        X = _as_points3(rest_positions)
+        X = geometry.as_points3(rest_positions, BendingError)
         H = validate_hinges(X, hinges, B=B, theta_bar=theta_bar)
         if from_rest and theta_bar is not None:
             raise BendingError("give either theta_bar or from_rest=True, not both")
@@ -625,18 +577,18 @@ class BendingEnergy(Energy):
         self.variant = variant
         self.mode = _MODE[variant]
         self.hinges_np = H
-        self.geometry = rest_geometry(X, H)
+        self.geometry = geometry.hinge_geometry(X, H)
         self.A_e = self.geometry["A_e"]
         self.B = np.broadcast_to(np.asarray(B, dtype=np.float64), (h,)).copy()
         self.k = hinge_stiffness(variant, self.B, self.geometry)
         if from_rest:
-            tb = dihedral_angles_numpy(X, H)
+            tb = geometry.dihedral_angles(X, H)
         elif theta_bar is None:
             tb = np.zeros(h)
         else:
             tb = np.asarray(theta_bar, dtype=np.float64).copy()
         self.theta_bar = tb
-        self.offsets_np, self.entries_np = build_hinge_incidence(self.n_vertices, H)
+        self.offsets_np, self.entries_np = geometry.incidence(self.n_vertices, H.reshape(-1))  # entry = 4 hinge + slot
 
         m = max(h, 1)  # ndarrays of size 0 are avoided; kernels are skipped when h == 0
         fdt = float_dtype()

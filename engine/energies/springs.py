@@ -40,6 +40,7 @@ gather streams through memory.
 import numpy as np
 import taichi as ti
 
+from engine import geometry
 from engine.energies.base import Energy
 from engine.errors import ModelError
 from engine.fields import (edge_array, float_dtype, int_array, int_ndarray, mat3_array, scalar_array, scalar_ndarray,
@@ -200,19 +201,6 @@ def validate_springs(X: np.ndarray, edges: np.ndarray, c: np.ndarray, L: np.ndar
                          f"(must be finite and > 0)")
 
 
-def build_csr(n: int, edges: np.ndarray):
-    """Vertex -> incident edges: offsets (n+1,), incident edge ids and other endpoints, sorted by
-    (vertex, other endpoint) for memory locality."""
-    m = len(edges)
-    owner = np.concatenate([edges[:, 0], edges[:, 1]])
-    other = np.concatenate([edges[:, 1], edges[:, 0]])
-    eid = np.concatenate([np.arange(m), np.arange(m)])
-    order = np.lexsort((other, owner))
-    counts = np.bincount(owner, minlength=n)
-    offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-    return offsets, eid[order], other[order]
-
-
 def dense_hessian_from_blocks(n: int, edges: np.ndarray, blocks: np.ndarray) -> np.ndarray:
     """Assemble the dense (3n, 3n) Hessian from per-edge blocks K (m, 3, 3): H_e = [[K,-K],[-K,K]]."""
     H = np.zeros((3 * n, 3 * n))
@@ -268,7 +256,7 @@ class SpringEnergy(Energy):
         self.edges_np = edges
         self.L_np = L
         self.c_np = c
-        offsets, inc_edge, inc_other = build_csr(self.n_vertices, edges)
+        offsets, inc_edge, inc_other = geometry.edge_incidence(self.n_vertices, edges, by="other")
         self.offsets_np, self.inc_edge_np, self.inc_other_np = offsets, inc_edge, inc_other
         if m >= 2 ** 30:
             raise ModelError(f"too many edges for i32 indexing ({m})")

@@ -8,7 +8,7 @@ vertices and a = 0, v = 0 for pinned ones (inverse mass 0):
   velocity Verlet    v* = v + dt/2 a(x) ;     x+ = x + dt v* ;   v+ = v* + dt/2 a(x+)
                      (kick-drift-kick; a(x+) is cached for the next step)
 
-Stability (lecture notes, "Courant-Friedrichs-Lewy (CFL) condition"; DESIGN.md section 6):
+Stability (lecture notes, "Courant-Friedrichs-Lewy (CFL) condition"):
 linearising about the rest state, each mode oscillates with w^2 an eigenvalue of M^-1 K.
 Symplectic Euler and Verlet are stable iff dt <= 2 / w_max; forward Euler multiplies each
 mode's energy by about (1 + w^2 dt^2) per step, so it is unstable at every dt without damping.

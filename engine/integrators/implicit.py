@@ -40,7 +40,7 @@ settled hanging body from chasing round-off).  Linear solves go through
 does not reach ``tol`` raises :class:`engine.linalg.SolverError` and leaves the state as
 it was before the step.  Finally v+ = (x+ - x_n)/dt; pinned vertices keep x and get v = 0.
 
-Energy behaviour (DESIGN section 6): for a linear problem every mode's energy is multiplied
+Energy behaviour: for a linear problem every mode's energy is multiplied
 by exactly 1/(1 + w^2 dt^2) per step (the amplification matrix in the variables (w x, v) is
 a rotation divided by sqrt(1 + w^2 dt^2)); the method is first-order accurate and stable at
 any dt.
