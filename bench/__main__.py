@@ -8,7 +8,7 @@ start-up (Taichi initialises once per process):
 2. the start-up probe (bench/startup.py) with an empty, then the filled, kernel cache;
 3. the headline sweep (bench/headline.py): cost per simulated second against E.
 
-Then bench/report.py merges them into ``<out>/<timestamp>.json``, ``<timestamp>.md`` and PNG
+Then bench/report/ merges them into ``<out>/<timestamp>.json``, ``<timestamp>.md`` and PNG
 plots, with copies ``latest.md``, ``latest.json``, ``latest-*.png``.  Raw inputs and logs stay in
 ``<out>/raw/<timestamp>/``; pytest-benchmark's own storage (for ``--benchmark-compare``) in
 ``<out>/storage/<config>/``.
