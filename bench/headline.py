@@ -6,11 +6,11 @@ B = 1e-4 N m) and each stretching modulus E:
 
 * explicit (symplectic Euler) at dt_exp = s x 2/sqrt(lambda_max), lambda_max of M^-1 H at the
   rest state by power iteration (engine.integrators.explicit.lambda_max_power), with the safety
-  factor s = 0.9 unless that run is unstable: ``n_check`` steps at dt_exp from the benchmark's
-  start state must keep the total energy finite and bounded, else s drops by 0.1 (soft cloth
-  stretches under its weight, which stiffens it transversally: its limit falls below the
-  rest-state estimate).  The explicit step's cost does not depend on E (the same kernels),
-  so it is timed once per resolution and divided by each dt_exp.
+  factor s = engine.constants.CFL_SAFETY unless that run is unstable: ``n_check`` steps at
+  dt_exp from the benchmark's start state must keep the total energy finite and bounded, else s
+  drops by 0.1 (soft cloth stretches under its weight, which stiffens it transversally: its
+  limit falls below the rest-state estimate).  The explicit step's cost does not depend on E
+  (the same kernels), so it is timed once per resolution and divided by each dt_exp.
 * backward Euler (one Newton iteration, no line search, PCG at rtol 1e-5 and Cholesky) at
   dt = 1/60 s and at the accuracy-matched dt (below); a few steps are timed from the start state
   (bench.config.cloth_start_state) and the median per-step cost is divided by dt.  PCG is not
@@ -33,15 +33,16 @@ cost per simulated second by the inverse).
     python -m bench.headline [--quick] [--json PATH] [--sides 32,64] [--E 10,100,...]
 """
 import argparse
-import json
 import math
 import sys
 import time
 
 import numpy as np
 
+from bench.output import emit_json
+from engine.constants import CFL_SAFETY, G
+
 ACCURACY_LOSS = 0.10
-G = 9.81
 E_SWEEP = {"quick": [1e1, 1e2, 1e3, 1e4, 1e5],
            "full": [1e1, 3e1, 1e2, 3e2, 1e3, 3e3, 1e4, 3e4, 1e5]}
 SIDES = {"quick": [32, 64], "full": [32, 64, 128]}
@@ -116,7 +117,7 @@ def _time_explicit(model, x0, v0, rounds=20, steps=5):
     return float(np.median(ts))
 
 
-SAFETY = (0.9, 0.8, 0.7, 0.6, 0.5, 0.4)
+SAFETY = tuple(round(CFL_SAFETY - 0.1 * k, 2) for k in range(6))  # 0.9, 0.8, ..., 0.4
 
 
 def _explicit_point(model, x0, v0, n_check):
@@ -238,13 +239,7 @@ def main(argv=None) -> int:
                     log=lambda s: print(s, file=sys.stderr, flush=True))
     out["wall_s"] = time.perf_counter() - t
     out["profile"] = prof
-    text = json.dumps(out, indent=1)
-    if args.json:
-        with open(args.json, "w") as fh:
-            fh.write(text)
-    else:
-        print(text)
-    return 0
+    return emit_json(out, args.json)
 
 
 if __name__ == "__main__":

@@ -14,9 +14,10 @@ import time
 T0 = time.perf_counter()
 
 import argparse  # noqa: E402
-import json  # noqa: E402
 import os  # noqa: E402
 import sys  # noqa: E402
+
+from bench.output import emit_json  # noqa: E402
 
 
 def _first_and_second(fn):
@@ -70,15 +71,9 @@ def main(argv=None) -> int:
     out["compile_total_s"] = sum(max(a - b, 0.0) for a, b in paths.values())
     out["process_s"] = time.perf_counter() - T0
     out["reset_at_exit"] = bool(args.reset_at_exit)
-    text = json.dumps(out, indent=1)
     if args.reset_at_exit:
         ti.reset()
-    if args.json:
-        with open(args.json, "w") as fh:
-            fh.write(text)
-    else:
-        print(text)
-    return 0
+    return emit_json(out, args.json)
 
 
 if __name__ == "__main__":

@@ -1,7 +1,8 @@
 """Timed: the 1D rod (engine.rod.Rod: many steps in one serial kernel) with symplectic Euler at
-0.9 of its stable dt and backward Euler (Thomas algorithm) at dt = 10 h/c; the same rod as a
-spring-chain Model stepped by the general backward Euler (PCG, Cholesky); and the numpy
-(symplectic Euler) and scipy (``solve_banded`` backward Euler) baselines."""
+engine.constants.CFL_SAFETY of its stable dt and backward Euler (Thomas algorithm) at
+dt = 10 h/c; the same rod as a spring-chain Model stepped by the general backward Euler (PCG,
+Cholesky); and the numpy (symplectic Euler) and scipy (``solve_banded`` backward Euler)
+baselines."""
 import numpy as np
 import pytest
 
@@ -9,6 +10,7 @@ from bench import config, traffic
 from bench.baseline import NumpyRod
 from bench.timing import measure, sync
 from engine import runtime
+from engine.constants import CFL_SAFETY
 from engine.model import float_dtype
 
 SIZES = config.sizes("rod")
@@ -21,7 +23,7 @@ def _steps(nodes):
 def _dts(rod):
     h = float(rod.h[0])
     c = float(np.sqrt(rod.E[0] / rod.rho[0]))
-    return 0.9 * rod.stable_dt(), config.ROD_IMPLICIT_NU * h / c
+    return CFL_SAFETY * rod.stable_dt(), config.ROD_IMPLICIT_NU * h / c
 
 
 def _fb():

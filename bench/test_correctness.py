@@ -19,10 +19,11 @@ import pytest
 from bench import config, headline, traffic
 from bench.baseline import NumpyCloth, NumpyRod
 from bench.variants import VARIANTS, bending_variant, spring_variant, stream_copy
+from engine.constants import CFL_SAFETY, G
 from engine.integrators import BackwardEuler
 from engine.integrators import get as integrator
 from engine.model import vec3_ndarray
-from engine.scenes import G, cloth
+from engine.scenes import cloth
 
 
 def _deformed(c, seed=0, amp=0.01):
@@ -40,7 +41,7 @@ def test_bench_cloth_is_the_lessons_scene_with_its_physics():
     assert np.allclose(c.springs.c_np, ref.springs.c_np) and np.array_equal(c.model.pinned, ref.model.pinned)
     assert c.bending.variant == "notes" and np.allclose(c.bending.k, ref.bending.k)
     # lumped masses sum to rho x area; area springs: each triangle gives a third of its area to each
-    # edge, so sum_e c_e = E x area (DESIGN section 6)
+    # edge, so sum_e c_e = E x area
     assert math.isclose(float(np.sum(c.model.mass)), config.CLOTH_RHO * 1.0, rel_tol=1e-12)
     assert math.isclose(float(np.sum(c.springs.c_np)), config.CLOTH_E * 1.0, rel_tol=1e-12)
     # at rest the only force on a free vertex is its weight; pinned vertices get none
@@ -67,7 +68,8 @@ def test_bench_rod_is_engine_rod_with_cfl_limit_h_over_c():
     h = 1.0 / 100
     c = math.sqrt(config.ROD_E / config.ROD_RHO)
     assert np.allclose(rod.h, h) and rod.pinned[0] and not rod.pinned[1:].any()
-    # symplectic Euler on the rod is stable iff dt <= h/c (DESIGN section 6; pinned end: slightly more)
+    # symplectic Euler on the rod is stable iff dt <= h/c (the CFL limit of the 1D wave equation;
+    # a pinned end allows slightly more)
     assert rod.stable_dt() >= h / c * (1 - 1e-12)
     assert abs(u0.max() - 1e-3) < 1e-4
 
@@ -168,7 +170,7 @@ def test_scipy_step_reaches_the_benchmark_tolerance():
 @pytest.mark.parametrize("method", ["symplectic-euler", "backward-euler"])
 def test_numpy_rod_steps_equal_engine_rod(method):
     rod, u0 = config.rod_scene(201)
-    dt = 0.9 * rod.stable_dt() if method == "symplectic-euler" else 10 * float(rod.h[0])
+    dt = CFL_SAFETY * rod.stable_dt() if method == "symplectic-euler" else 10 * float(rod.h[0])
     st = rod.new_state(u0)
     rod.run(st, dt, 30, method)
     base = NumpyRod(rod)
