@@ -115,7 +115,8 @@ class Stepping:
     "default" keeps each run's own choice. Runs whose claim is about one particular
     integrator (a CFL limit, energy conservation of a symplectic method, the damping of
     backward Euler) are *fixed* and ignore the choice; the stage says so. With an explicit
-    integrator a scene whose dt exceeds 0.9x the stable estimate is sub-stepped.
+    integrator a scene whose dt exceeds engine.constants.CFL_SAFETY (0.9) x the stable
+    estimate is sub-stepped.
     """
 
     integrator: str = param("default", "time integrator for the lessons' scene runs ('default': each run's own "

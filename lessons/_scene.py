@@ -11,6 +11,7 @@ import math
 import numpy as np
 
 from engine import diagnostics
+from engine.constants import CFL_SAFETY
 from engine.linalg import SolverError
 from engine import errors
 from engine.integrators.explicit import BlowUpError, _blowup_message, stable_dt_estimate
@@ -26,8 +27,9 @@ def simulate(ctx, name: str, model, state, dt: float, n_steps: int, integrator="
 
     Unless ``fixed`` (the run is about that integrator), ``--integrator/--solver/--tol/
     --newton-iterations`` replace the run's choice; an explicit integrator chosen that way at a dt
-    above 0.9x the stable (Gershgorin) estimate takes enough sub-steps per step to stay below it,
-    so the run covers the same simulated time with the same steps, observations and frames.
+    above CFL_SAFETY (engine.constants, 0.9) x the stable (Gershgorin) estimate takes enough
+    sub-steps per step to stay below it, so the run covers the same simulated time with the same
+    steps, observations and frames.
 
     After every ``energy_every``-th step the kinetic and potential energy (J) are computed; a
     total above ``energy_bound`` or non-finite raises BlowUpError naming that step (after
@@ -43,8 +45,8 @@ def simulate(ctx, name: str, model, state, dt: float, n_steps: int, integrator="
     substeps = 1
     if not fixed and ctx.stepping.overridden and not getattr(integ, "implicit", False):
         dts = stable_dt_estimate(model)
-        if dt > 0.9 * dts:
-            substeps = int(math.ceil(dt / (0.9 * dts)))
+        if dt > CFL_SAFETY * dts:
+            substeps = int(math.ceil(dt / (CFL_SAFETY * dts)))
             ctx.progress(f"{name}: {integ.name} needs dt <= {dts:.3g} s (CFL estimate) but the scene steps "
                          f"{dt:.3g} s: taking {substeps} sub-steps per step")
     h = dt / substeps
@@ -154,15 +156,3 @@ def run_chunked(ctx, name: str, dt: float, n_steps: int, every: int, advance, dr
             done += chunk
             draw(done)
     return np.concatenate(kin), np.concatenate(pot)
-
-
-def edge_strain(x: np.ndarray, edges: np.ndarray, rest_lengths: np.ndarray) -> np.ndarray:
-    """(l/L - 1) per edge, for colouring."""
-    return np.linalg.norm(x[edges[:, 1]] - x[edges[:, 0]], axis=1) / rest_lengths - 1.0
-
-
-def vertex_strain(n: int, edges: np.ndarray, strain: np.ndarray) -> np.ndarray:
-    """Mean strain of the edges around each vertex, for vertex colours."""
-    acc = np.bincount(edges.ravel(), weights=np.repeat(strain, 2), minlength=n)
-    cnt = np.bincount(edges.ravel(), minlength=n)
-    return acc / np.maximum(cnt, 1)

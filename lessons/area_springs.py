@@ -23,7 +23,8 @@ from engine.waves import (ModeProbe, cauchy_born_tensor, christoffel, max_speed,
                           relaxed_stiffness_2d, young_poisson)
 
 from ._framework import Experiment, Lesson, Stage, param
-from ._scene import edge_strain, simulate, vertex_strain
+from ._measure import be_damping_rate, damped_frequency, edge_strain, vertex_strain
+from ._scene import simulate
 
 RUN_PERIODS = 0.3   # each standing-wave run lasts this fraction of a period (phase 0 -> 1.9 rad)
 BOX_LENGTH = 1.0    # m, the tet box of stage 1 and the cell size unit of stage 4
@@ -126,28 +127,6 @@ def standing_wave(ctx, name: str, model: Model, mass: np.ndarray, direction, pol
     ctx.progress(f"{name}: backward Euler, dt = {dt:.4g} s (w dt = {w * dt:.4f}), fitted damping "
                  f"{gamma:.4g} 1/s, the scheme's {be_damping_rate(w, dt):.4g} 1/s")
     return w / k
-
-
-def damped_frequency(t: np.ndarray, a: np.ndarray) -> tuple[float, float]:
-    """(w, gamma) of a(t) = a(0) exp(-gamma t) cos(w t), least squares over all samples (a run
-    from rest stepped by backward Euler has exactly this form for each normal mode)."""
-    from scipy.optimize import least_squares
-
-    r = a / a[0]
-    w0 = phase_frequency(t, a)  # a start, biased by the decay
-
-    def resid(p):
-        return np.exp(-p[1] * t) * np.cos(p[0] * t) - r
-
-    sol = least_squares(resid, [w0, 0.0], x_scale=[w0, w0], xtol=1e-14, ftol=1e-14, gtol=1e-14)
-    return float(sol.x[0]), float(sol.x[1])
-
-
-def be_damping_rate(w: float, dt: float) -> float:
-    """Backward Euler on an oscillator whose scheme frequency is w (phase arctan(W dt) = w dt per
-    step, W the true frequency): amplitude factor 1/sqrt(1 + (W dt)^2) = cos(w dt) per step, i.e.
-    the decay rate -ln(cos(w dt))/dt."""
-    return -math.log(math.cos(w * dt)) / dt
 
 
 def be_experiments(ctx, fits: list, jittered: list = ()) -> list:

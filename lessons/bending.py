@@ -16,6 +16,7 @@ import taichi as ti
 
 from engine import mesh as meshes
 from engine.analysis import convergence_order, fit_slope
+from engine.constants import G
 from engine.energies.bending import VARIANTS, BendingEnergy, bridson_u_kernel, theta_gradient_kernel
 from engine.errors import ParameterError
 from engine.integrators import make_integrator
@@ -24,9 +25,8 @@ from engine.scenes import cloth
 from engine.statics import solve_static
 
 from ._framework import Experiment, Lesson, Stage, param
+from ._measure import per_hinge_fd, random_rotation
 from ._scene import simulate
-
-G = 9.81
 
 
 @dataclass
@@ -89,14 +89,6 @@ def analytic_hinge(theta, L=1.0, p0=0.35, r0=0.8, p1=0.7, r1=0.6):
                      [p1, -r1 * math.cos(theta), -r1 * math.sin(theta)]])
 
 
-def random_rotation(rng) -> np.ndarray:
-    Q, R = np.linalg.qr(rng.normal(size=(3, 3)))
-    Q = Q * np.sign(np.diag(R))
-    if np.linalg.det(Q) < 0:
-        Q[:, 0] = -Q[:, 0]
-    return Q
-
-
 def random_hinges(rng, m, max_angle=2.5):
     """m unconnected hinges (vertices 4i..4i+3), random shape, angle, rotation and position,
     with rest shapes that are flat (the same hinge at theta = 0)."""
@@ -109,19 +101,6 @@ def random_hinges(rng, m, max_angle=2.5):
         bent.append(analytic_hinge(rng.uniform(-max_angle, max_angle), **kw) @ Q.T + t)
         flat.append(analytic_hinge(0.0, **kw) @ Q.T + t)
     return np.concatenate(bent), np.concatenate(flat), np.arange(4 * m).reshape(m, 4)
-
-
-def per_hinge_fd(fun, X, eps=1e-6) -> np.ndarray:
-    """Central differences of a per-hinge scalar for unconnected hinges: (m, 4, 3)."""
-    m = len(X) // 4
-    out = np.zeros((m, 4, 3))
-    for a in range(4):
-        for c in range(3):
-            Xp, Xm = X.copy(), X.copy()
-            Xp[a::4, c] += eps
-            Xm[a::4, c] -= eps
-            out[:, a, c] = (fun(Xp) - fun(Xm)) / (2 * eps)
-    return out
 
 
 def centred(mesh2d):

@@ -24,7 +24,8 @@ from engine.scenes import cloth
 from engine.statics import solve_static
 
 from ._framework import Experiment, Lesson, Stage, param
-from ._scene import edge_strain, simulate, vertex_strain
+from ._measure import edge_strain, vertex_strain
+from ._scene import simulate
 
 
 @dataclass

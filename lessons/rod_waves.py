@@ -19,9 +19,10 @@ import numpy as np
 
 from engine.analysis import fit_slope, geometric_growth, peak
 from engine.errors import BlowUpError, ParameterError
-from engine.rod import ModalReference, Rod
+from engine.rod import Rod
 
 from ._framework import Experiment, Lesson, Stage, param
+from ._measure import central_gradient, expect, modal_tracks, observation_steps, rod_node_strain, track_peaks
 from ._scene import run_chunked
 
 
@@ -84,10 +85,8 @@ def simulate(ctx, name: str, rod: Rod, state, dt: float, n_steps: int, method: s
     def log(step):
         if rec.enabled:
             x = state.x.to_numpy()
-            s = np.diff(x) / rod.h - 1.0
-            node_strain = np.concatenate([[s[0]], 0.5 * (s[1:] + s[:-1]), [s[-1]]])
             rec.set_time(step, step * dt)
-            rec.rod(x, rod.p, node_strain, gain=gain)
+            rec.rod(x, rod.p, rod_node_strain(x, rod.p), gain=gain)
 
     def draw(step):
         log(step)
@@ -103,11 +102,6 @@ def uniform_rod(cfg, pinned=()) -> Rod:
     return Rod.uniform(cfg.nodes, 1.0, cfg.E, cfg.rho, pinned)
 
 
-def observation_steps(n_steps: int, every: int) -> list[int]:
-    """The steps at which :func:`simulate` observes: 0, every, 2 every, ..., n_steps."""
-    return list(range(0, n_steps, every)) + [n_steps]
-
-
 def run_scene(ctx, name: str, rod: Rod, u0, v0, dt: float, n_steps: int, method: str, regions=(),
               every: int | None = None):
     """A scene run from displacement u0 and velocity v0 under ``method``, following the peaks of
@@ -118,42 +112,13 @@ def run_scene(ctx, name: str, rod: Rod, u0, v0, dt: float, n_steps: int, method:
     every = every or ctx.cfg.record_every
     st = rod.new_state(u0, v0)
     E0 = rod.energy(st.x) + rod.kinetic(st)
-    tracks, obs = track_peaks(rod, regions)
+    tracks, obs = track_peaks(rod.p, regions)
     simulate(ctx, name, rod, st, dt, n_steps, method, energy_bound=10 * E0, observe=obs, every=every)
     result = (tracks, st.displacement(rod))
     if method in SYMPLECTIC:
         return result, None
-    ref = ModalReference(rod, u0, v0, dt, method)
-    ref_tracks, ref_obs = track_peaks(rod, regions)
     steps = observation_steps(n_steps, every) if regions else [n_steps]
-    U = ref.displacements(steps)
-    if regions:
-        for s, u in zip(steps, U):
-            ref_obs(s, s * dt, u)
-    return result, (ref_tracks, U[-1])
-
-
-def expect(ctx, method: str, claim: str, undamped: float, measured: float, predicted, tol: float,
-           unit: str = "") -> Experiment:
-    """A scene experiment: against the undamped theory under a symplectic method, against the
-    scheme's own modal prediction otherwise (the claim then names the undamped value too)."""
-    if method in SYMPLECTIC:
-        return Experiment(claim, undamped, measured, tol, "rel", unit)
-    ctx.progress(f"{claim}: {method} predicts {predicted:.6g} (undamped theory {undamped:.6g}, "
-                 f"ratio {predicted / undamped:.4f}); measured {measured:.6g}")
-    return Experiment(f"{claim}: {method}'s modal prediction (undamped theory {undamped:.4g})",
-                      predicted, measured, tol, "rel", unit)
-
-
-def track_peaks(rod: Rod, regions):
-    """An observer recording (t, position, value) of the peak in each (lo, hi, sign) region."""
-    tracks = [[] for _ in regions]
-
-    def observe(step, t, u):
-        for track, (lo, hi, sign) in zip(tracks, regions):
-            lo_, hi_ = (lo(t), hi(t)) if callable(lo) else (lo, hi)
-            track.append((t, *peak(rod.p, u, lo_, hi_, sign)))
-    return tracks, observe
+    return result, modal_tracks(rod, u0, v0, dt, method, steps, regions)
 
 
 # ------------------------------------------------------------------------- stage 1
@@ -193,14 +158,8 @@ def stage_energy(ctx):
     stencil = (E[1:] * sigma[1:] - E[:-1] * sigma[:-1]) / h[1:] / rho_node
     stencil_err = np.max(np.abs(a[1:-1] - stencil)) / np.max(np.abs(stencil))
     # Central finite differences of W on a sample of nodes.
-    eps = 1e-6
     idx = np.linspace(0, n - 1, 41).astype(int)
-    fd = np.empty(idx.size)
-    for k, i in enumerate(idx):
-        xp, xm = x.copy(), x.copy()
-        xp[i] += eps
-        xm[i] -= eps
-        fd[k] = -(rod.energy(xp) - rod.energy(xm)) / (2 * eps)
+    fd = -central_gradient(rod.energy, x, 1e-6, at=idx)
     fd_err = np.linalg.norm(fd - f[idx]) / np.linalg.norm(f[idx])
     rest_force = np.max(np.abs(rod.forces(p.copy()))) / cfg.E
     # W of a uniform stretch is 1/2 E s^2 L (a closed form to compare the sum with).
@@ -268,7 +227,7 @@ def stage_sound(ctx):
         u0, v0 = gaussian(rod.p, 0.25, sigma, A), -c * gaussian_slope(rod.p, 0.25, sigma, A)
         ((track,), _), pred = run_scene(ctx, f"right_nu{nu}", rod, u0, v0, dt, n_steps, method, [(0.0, 1.0, 1)])
         exps.append(expect(ctx, method, f"right-moving pulse speed at nu = {nu}", c, speed(track, 0.05, 0.45),
-                           pred and speed(pred[0][0], 0.05, 0.45), 5e-3, "m/s"))
+                           pred and speed(pred[0][0], 0.05, 0.45), 5e-3, unit="m/s"))
 
     nu = min(cfg.cfl, 1.0)
     dt = nu * h / c
@@ -276,7 +235,7 @@ def stage_sound(ctx):
     u0, v0 = gaussian(rod.p, 0.75, sigma, A), c * gaussian_slope(rod.p, 0.75, sigma, A)
     ((track,), _), pred = run_scene(ctx, "left", rod, u0, v0, dt, n_steps, method, [(0.0, 1.0, 1)])
     exps.append(expect(ctx, method, f"left-moving pulse speed at nu = {nu}", -c, speed(track, 0.05, 0.45),
-                       pred and speed(pred[0][0], 0.05, 0.45), 5e-3, "m/s"))
+                       pred and speed(pred[0][0], 0.05, 0.45), 5e-3, unit="m/s"))
 
     n_steps = int(round(0.4 / c / dt))
     regions = [(0.0, 0.5, 1), (0.5, 1.0, 1)]
@@ -285,11 +244,11 @@ def stage_sound(ctx):
     amplitude = lambda tracks: 0.5 * (tracks[0][-1][2] + tracks[1][-1][2])  # at the end
     exps += [  # speeds once the halves have separated (t > 0.1/c)
         expect(ctx, method, "d'Alembert: left half moves at -c", -c, speed(left, 0.1, np.inf),
-               pred and speed(pred[0][0], 0.1, np.inf), 5e-3, "m/s"),
+               pred and speed(pred[0][0], 0.1, np.inf), 5e-3, unit="m/s"),
         expect(ctx, method, "d'Alembert: right half moves at +c", c, speed(right, 0.1, np.inf),
-               pred and speed(pred[0][1], 0.1, np.inf), 5e-3, "m/s"),
+               pred and speed(pred[0][1], 0.1, np.inf), 5e-3, unit="m/s"),
         expect(ctx, method, "d'Alembert: each half has amplitude A/2", A / 2, amplitude((left, right)),
-               pred and amplitude(pred[0]), 1e-2, "m"),
+               pred and amplitude(pred[0]), 1e-2, unit="m"),
     ]
     if method == "backward-euler":
         # long waves: per-step factor (1 + (c k dt)^2)^-1/2 ~ exp(-c^2 k^2 dt^2/2), i.e. diffusion with
@@ -504,7 +463,7 @@ def stage_heterogeneous(ctx):
     for where in (0.3, 0.5, 0.7):
         speed, local = local_speed(track, where)
         exps.append(expect(ctx, method, f"smooth E(p): pulse speed near p = {where} equals sqrt(E(p)/rho)",
-                           local, speed, pred and local_speed(pred[0][0], where)[0], 1e-2, "m/s"))
+                           local, speed, pred and local_speed(pred[0][0], where)[0], 1e-2, unit="m/s"))
     return exps
 
 

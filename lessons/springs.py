@@ -23,20 +23,20 @@ import scipy.linalg as sla
 
 from engine import diagnostics
 from engine import mesh as meshes
-from engine.analysis import convergence_order, fit_slope, peak
+from engine.analysis import convergence_order, fit_slope
+from engine.constants import G
 from engine.errors import BlowUpError
 from engine.integrators import get as get_integrator
 from engine.integrators.explicit import stable_dt_estimate
 from engine.integrators.fused import METHODS as FUSED_METHODS, run_fused
 from engine.model import Model, vec3_ndarray
-from engine.rod import ModalReference, Rod
+from engine.rod import Rod
 from engine.statics import solve_static
 
 from ._framework import Experiment, Lesson, Stage, param
-from ._scene import edge_strain, run_chunked, simulate as scene_simulate, step_drawer
-
-G = 9.81
-
+from ._measure import (central_difference, central_gradient, edge_strain, expect, modal_tracks, observation_steps,
+                       random_rotation, rod_node_strain, track_peaks)
+from ._scene import run_chunked, simulate as scene_simulate, step_drawer
 
 @dataclass
 class SpringsConfig:
@@ -85,12 +85,6 @@ def simulate_fused(ctx, name: str, model: Model, state, dt: float, n_steps: int,
     return run_chunked(ctx, name, dt, n_steps, every, draw=step_drawer(rec, dt, state, log, observe),
                        advance=lambda chunk, done: run_fused(model, state, dt, chunk, method, energy_bound,
                                                              step_offset=done))
-
-
-def random_rotation(rng) -> np.ndarray:
-    q, r = np.linalg.qr(rng.standard_normal((3, 3)))
-    q = q * np.sign(np.diag(r))
-    return q if np.linalg.det(q) > 0 else -q
 
 
 # ------------------------------------------------------------------------- stage 1
@@ -154,18 +148,12 @@ def stage_one_spring(ctx):
     fd_err, dir_err, closed_err, par_err, third_err = 0.0, 0.0, 0.0, 0.0, 0.0
     for x in configs:
         f = force(x)
-        fd = np.empty((2, 3))
-        for a in range(2):
-            for b in range(3):
-                xp, xm = x.copy(), x.copy()
-                xp[a, b] += eps
-                xm[a, b] -= eps
-                fd[a, b] = -(W(xp) - W(xm)) / (2 * eps)
+        fd = -central_gradient(W, x, eps)
         fd_err = max(fd_err, np.linalg.norm(fd - f) / np.linalg.norm(f))
         grad = -f
         for _ in range(5):
             q = rng.standard_normal((2, 3))
-            dq = (W(x + eps * q) - W(x - eps * q)) / (2 * eps)  # g'(0) by central differences
+            dq = central_difference(W, x, q, eps)  # g'(0)
             dir_err = max(dir_err, abs(dq - np.sum(grad * q)) / (np.linalg.norm(grad) * np.linalg.norm(q)))
         cf = closed_form(x)
         closed_err = max(closed_err, np.linalg.norm(f[0] - cf) / np.linalg.norm(cf))
@@ -176,7 +164,7 @@ def stage_one_spring(ctx):
     rest_force = float(np.abs(force(X)).max()) / cfg.k
 
     x = configs[0]
-    R, t = random_rotation(rng), rng.standard_normal(3)
+    R, t = random_rotation(rng, negate_all=True), rng.standard_normal(3)
     W0, f0 = W(x), force(x)
     xr = x @ R.T + t
     rigid_err = abs(W(xr) - W0) / W0
@@ -486,7 +474,7 @@ def stage_variational(ctx):
     x = p + _u(p)
     q = np.sin(2 * np.pi * p) * p
     eps = 1e-6
-    dq = (rod.energy(x + eps * q) - rod.energy(x - eps * q)) / (2 * eps)
+    dq = central_difference(rod.energy, x, q, eps)
     fq = -float(np.dot(rod.forces(x), q))
     exps.append(Experiment("discrete D_q W (central differences in eps) = -sum_i f_i q_i", fq, dq, 1e-7, "rel", "J"))
 
@@ -613,15 +601,8 @@ def _pulse_speed(ctx, name, model, p, c_scale, sigma, k, rho, p0=0.25):
     n_steps = int(0.45 / c_scale / dt)
     every = max(n_steps // 100, 1)
 
-    def observer(track):
-        def observe(step, u):
-            t = step * dt
-            if t * c_scale > 6 * sigma:  # the halves have separated
-                track.append((t, peak(p, u, p0, 1.0, 1)[0]))
-        return observe
-
-    track = []
-    observe = observer(track)
+    region = [(p0, 1.0, 1)]  # the right-moving half
+    (track,), observe = track_peaks(p, region)
     calls = [0]
 
     def log(rec, s):  # every 5th observation: 20 frames per run keep the recording small
@@ -629,37 +610,24 @@ def _pulse_speed(ctx, name, model, p, c_scale, sigma, k, rho, p0=0.25):
         if (calls[0] - 1) % 5:
             return
         x = s.x.to_numpy()[:, 0]
-        strain = np.diff(x) / np.diff(p) - 1.0
-        nodes = np.concatenate([[strain[0]], 0.5 * (strain[1:] + strain[:-1]), [strain[-1]]])
-        rec.rod(x, p, nodes, gain=0.1 / A)
+        rec.rod(x, p, rod_node_strain(x, p), gain=0.1 / A)
 
-    on_state = lambda step, s: observe(step, s.x.to_numpy()[:, 0] - p)
+    on_state = lambda step, s: observe(step, step * dt, s.x.to_numpy()[:, 0] - p)
     if method in FUSED_METHODS:
         simulate_fused(ctx, name, model, st, dt, n_steps, method, every, energy_bound=bound, observe=on_state,
                        log=log)
     else:  # backward Euler (with --solver/--tol/--newton-iterations) via the engine's integrator
         scene_simulate(ctx, name, model, st, dt, n_steps, "symplectic-euler", every=every, energy_bound=bound,
                        observe=on_state, log=log)
-    fit = lambda track: fit_slope(*np.array(track).T)
+
+    def fit(track):  # the peak's speed once the halves have separated
+        return fit_slope(*np.array([(t, x) for t, x, _ in track if t * c_scale > 6 * sigma]).T)
+
     if method in UNDAMPED:
         return fit(track), None
-    steps = list(range(0, n_steps, every)) + [n_steps]  # the observation steps of both runners
-    ref_track = []
-    ref_observe = observer(ref_track)
-    for step, u in zip(steps, ModalReference(Rod(p, k, rho), u0, None, dt, method).displacements(steps)):
-        ref_observe(step, u)
+    steps = observation_steps(n_steps, every)  # the observation steps of both runners
+    (ref_track,), _ = modal_tracks(Rod(p, k, rho), u0, None, dt, method, steps, region)
     return fit(track), fit(ref_track)
-
-
-def _expect(ctx, claim, undamped, measured, predicted, tol, compare="rel", unit=""):
-    """Against the undamped theory under a symplectic method, else against the scheme's prediction."""
-    if predicted is None:
-        return Experiment(claim, undamped, measured, tol, compare, unit)
-    method = ctx.integrator_name("symplectic-euler")
-    ctx.progress(f"{claim}: {method} predicts {predicted:.6g} (undamped theory {undamped:.6g}); "
-                 f"measured {measured:.6g}")
-    return Experiment(f"{claim}: {method}'s modal prediction (undamped theory {undamped:.4g})", predicted,
-                      measured, tol, compare, unit)
 
 
 def stage_sound(ctx):
@@ -668,6 +636,7 @@ def stage_sound(ctx):
     c = math.sqrt(cfg.E / rho)
     h = 1.0 / cfg.wave_segments
     sigma = 30 * h  # ten periods of the alternating pattern
+    method = ctx.integrator_name("symplectic-euler")
     exps = []
     speeds, predicted_speeds = [], []
     for kind in ("uniform", "alternating", "graded"):
@@ -677,11 +646,11 @@ def stage_sound(ctx):
         v, v_pred = _pulse_speed(ctx, f"matched_{kind}", model, p, c, sigma, k, rho)
         speeds.append(v)
         predicted_speeds.append(v_pred)
-        exps.append(_expect(ctx, f"k_j = rho c^2 ({kind} lengths, {Ls.size} segments): pulse speed = c",
-                            c, v, v_pred, 1e-2, unit="m/s"))
+        exps.append(expect(ctx, method, f"k_j = rho c^2 ({kind} lengths, {Ls.size} segments): pulse speed = c",
+                           c, v, v_pred, 1e-2, unit="m/s"))
     spread = lambda v: (max(v) - min(v)) / c
-    exps.append(_expect(ctx, "k_j = rho c^2: spread of the three speeds (max - min) / c", 0.0, spread(speeds),
-                        None if v_pred is None else spread(predicted_speeds), 1e-2, "abs"))
+    exps.append(expect(ctx, method, "k_j = rho c^2: spread of the three speeds (max - min) / c", 0.0,
+                       spread(speeds), None if v_pred is None else spread(predicted_speeds), 1e-2, "abs"))
     kappa = rho * c * c / h  # one Hooke constant, chosen to give c on the uniform chain of spacing h
     const = []
     for kind in ("uniform", "alternating"):
@@ -690,8 +659,8 @@ def stage_sound(ctx):
         predicted = math.sqrt(kappa * Ls.mean() / rho)  # sqrt(k_eff L_mean / m_mean), k_eff = kappa L_mean
         v, v_pred = _pulse_speed(ctx, f"constant_kappa_{kind}", model, p, predicted, sigma, kappa * Ls, rho)
         const.append(v)
-        exps.append(_expect(ctx, f"one Hooke constant kappa ({kind} lengths): speed = sqrt(kappa L_mean / rho)",
-                            predicted, v, v_pred, 1e-2, unit="m/s"))
+        exps.append(expect(ctx, method, f"one Hooke constant kappa ({kind} lengths): speed = sqrt(kappa L_mean / "
+                           "rho)", predicted, v, v_pred, 1e-2, unit="m/s"))
     exps.append(Experiment("one Hooke constant: the two patterns' speeds differ by more than 1% (rel. diff.)",
                            0.01, abs(const[1] - const[0]) / const[0], 0, ">="))
     return exps

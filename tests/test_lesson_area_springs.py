@@ -12,11 +12,13 @@ import pytest
 
 from engine import mesh as M
 from engine.errors import ParameterError
-from engine.model import Model, vec3_ndarray
+from engine.fields import vec3_ndarray
+from engine.model import Model
 from engine.waves import (ModeProbe, cauchy_born_tensor, christoffel, max_speed, phase_frequency,
                           relaxed_stiffness_2d, young_poisson)
 from lessons._framework import validate_config
-from lessons.area_springs import LESSON, AreaSpringsConfig, be_damping_rate, bulk_tensor, damped_frequency
+from lessons._measure import be_damping_rate, central_gradient, damped_frequency
+from lessons.area_springs import LESSON, AreaSpringsConfig, bulk_tensor
 from tests.helpers import assert_all_passed, run_stage
 
 
@@ -181,13 +183,7 @@ def _fd_gradient_error(X, edges, c, x):
     f = vec3_ndarray(len(x))
     sp.add_forces(vec3_ndarray(len(x), x), f)
     f = f.to_numpy().reshape(-1)
-    h = 1e-6
-    g = np.zeros(x.size)
-    for a in range(x.size):
-        xp, xm = x.copy(), x.copy()
-        xp.reshape(-1)[a] += h
-        xm.reshape(-1)[a] -= h
-        g[a] = (sp.energy(vec3_ndarray(len(x), xp)) - sp.energy(vec3_ndarray(len(x), xm))) / (2 * h)
+    g = central_gradient(lambda y: sp.energy(vec3_ndarray(len(y), y)), x, 1e-6).reshape(-1)
     return np.linalg.norm(g + f) / np.linalg.norm(g)
 
 
