@@ -5,7 +5,7 @@ For each resolution (the lessons' hanging cloth, engine.scenes.cloth, rho = 0.1 
 B = 1e-4 N m) and each stretching modulus E:
 
 * explicit (symplectic Euler) at dt_exp = s x 2/sqrt(lambda_max), lambda_max of M^-1 H at the
-  rest state by power iteration (engine.integrators.explicit.lambda_max_power), with the safety
+  rest state by power iteration (engine.stability.lambda_max_power), with the safety
   factor s = engine.constants.CFL_SAFETY unless that run is unstable: ``n_check`` steps at
   dt_exp from the benchmark's start state must keep the total energy finite and bounded, else s
   drops by 0.1 (soft cloth stretches under its weight, which stiffens it transversally: its
@@ -125,7 +125,7 @@ def _explicit_point(model, x0, v0, n_check):
     ``n_check`` steps from (x0, v0) keep the total energy finite and bounded."""
     from engine import diagnostics
     from engine.integrators import BlowUpError, run
-    from engine.integrators.explicit import lambda_max_power
+    from engine.stability import lambda_max_power
     lam = lambda_max_power(model, iters=300, rtol=1e-6)
     scale = float(np.sum(model.mass)) * G * float(np.ptp(model.X[:, 2]) + 1.0)
     failed = []

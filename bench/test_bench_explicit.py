@@ -15,7 +15,7 @@ from bench.timing import measure, sync
 from bench.variants import bending_variant, spring_variant
 from engine.energies.bending import gather_hinge_vectors_kernel, hinge_forces_kernel
 from engine.integrators import get as integrator
-from engine.integrators.explicit import symplectic_euler_update
+from engine.integrators import kernels as step_kernels
 from engine.model import float_dtype, zero_vec3
 
 SIZES = config.sizes("cloth")
@@ -89,7 +89,8 @@ def test_force_kernels(benchmark, side, kernel):
         call = lambda: gather_hinge_vectors_kernel(be._per_hinge_vec, be._offsets, be._entries, f)  # noqa: E731
     else:  # update (dt = 0: the state stays put)
         zero_vec3(f)
-        call = lambda: symplectic_euler_update(st.x, st.v, f, m.inv_mass_nd, m.gravity_vec, 0.0)  # noqa: E731
+        call = lambda: step_kernels.update_kernel(st.x, st.v, f, f, m.inv_mass_nd, m.gravity_vec, 0.0,  # noqa: E731
+                                                  step_kernels.SYMPLECTIC_EULER, step_kernels.STEP)
 
     def run():
         call()

@@ -13,3 +13,7 @@ SERIAL_BELOW  below this many vertices the PCG solver runs its whole CG loop in 
 G = 9.81
 CFL_SAFETY = 0.9
 SERIAL_BELOW = 20000
+
+# Spring-only models below this many vertices run many explicit steps per kernel launch (one
+# serial kernel: a chain or a frame is cheaper to step serially than to launch kernels for).
+MANY_STEPS_BELOW = 50000

@@ -13,20 +13,25 @@ class ModelError(ValueError):
 
 
 class BlowUpError(RuntimeError):
-    """A simulation left its stable regime; raised at the step it was detected.
+    """A simulation left its stable regime; raised at the step it was detected (the one class for
+    every integrator and runner; built by :class:`engine.integrators.monitor.Monitor`).
 
-    Attributes: ``step`` (index of the step after which the state was found bad, counted
-    from the start of the run that raised), ``energy`` (total energy at that step, may be
-    inf or nan), ``cause`` (the likely cause in words), ``stable_dt`` (for explicit
-    integrators, an estimate of the largest stable time step, or None).
+    Attributes: ``step`` (0-based index of the step after which the state was found bad, counted
+    from the start of the run), ``time`` (s), ``energy`` (total energy at that step, J; may be inf
+    or nan), ``dt`` (s), ``dt_stable`` (the CFL estimate of the largest stable dt, s, or None),
+    ``integrator`` (its name), ``cause`` (the likely cause in words), and ``kinetic`` /
+    ``potential`` (per-step energies up to the bad step, where the runner recorded them).
     """
 
-    def __init__(self, step: int, energy: float, cause: str, stable_dt: float | None = None):
+    def __init__(self, message: str, *, step: int, energy: float, time: float = float("nan"),
+                 dt: float = float("nan"), dt_stable: float | None = None, integrator: str = "", cause: str = ""):
+        super().__init__(message)
         self.step = int(step)
         self.energy = float(energy)
+        self.time = float(time)
+        self.dt = float(dt)
+        self.dt_stable = dt_stable
+        self.integrator = integrator
         self.cause = cause
-        self.stable_dt = stable_dt
-        msg = f"simulation blew up at step {self.step} (total energy {self.energy:.6g}): {cause}"
-        if stable_dt is not None:
-            msg += f"; use dt <= {stable_dt:.6g} s"
-        super().__init__(msg)
+        self.kinetic = None
+        self.potential = None

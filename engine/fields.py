@@ -7,6 +7,8 @@ takes ``ti.ndarray`` arguments, so it compiles once for all sizes.
 Conventions: a vec3 array has one entry per model vertex; ``inv_mass`` is 0 on pinned
 vertices (they never move and carry no unknowns), so "free" reductions skip them.
 """
+import weakref
+
 import numpy as np
 import taichi as ti
 
@@ -59,6 +61,21 @@ def int_ndarray(values: np.ndarray):
     a = ti.ndarray(dtype=ti.i32, shape=shape if len(shape) > 1 else shape[0])
     if values.size:
         a.from_numpy(values)
+    return a
+
+
+_scratch: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def scratch_vec3(model, name: str):
+    """A named scratch vec3 ndarray for ``model`` (one entry per vertex), allocated once and owned by
+    the solvers that ask for it, not by the model (a Model is not changed after it is built)."""
+    d = _scratch.get(model)
+    if d is None:
+        d = _scratch[model] = {}
+    a = d.get(name)
+    if a is None:
+        a = d[name] = vec3_ndarray(model.n)
     return a
 
 

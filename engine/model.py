@@ -141,6 +141,8 @@ class Model:
         self.free = ~pinned_mask
         self.gravity = g
         self.gravity_vec = ti.math.vec3(*g)  # kernel argument, built once
+        m_free = m[~pinned_mask]
+        self.weight_norm = float(np.sqrt(np.sum(m_free * m_free)) * np.linalg.norm(g))  # |M g| over free vertices (N)
         inv = np.where(pinned_mask, 0.0, 1.0 / np.where(m > 0, m, 1.0))
         # Taichi arrays
         self.mass_nd = scalar_ndarray(m)

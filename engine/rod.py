@@ -32,11 +32,11 @@ import numpy as np
 import scipy.linalg as sla
 import taichi as ti
 
-from .errors import BlowUpError, ParameterError
-
-FORWARD_EULER, SYMPLECTIC_EULER, BACKWARD_EULER, VELOCITY_VERLET = 0, 1, 2, 3
-METHODS = {"forward-euler": FORWARD_EULER, "symplectic-euler": SYMPLECTIC_EULER,
-           "backward-euler": BACKWARD_EULER, "velocity-verlet": VELOCITY_VERLET}
+from engine.errors import ParameterError
+from engine.integrators.kernels import METHODS
+from engine.integrators.monitor import Monitor
+from engine.stability import lambda_max_from_rows
+from engine.theory.schemes import ModalReference, amplification  # noqa: F401  (re-exported for the lessons)
 
 F1 = ti.types.ndarray(dtype=float, ndim=1)
 
@@ -118,7 +118,7 @@ def rod_run(x: F1, v: F1, h: F1, E: F1, m: F1, inv_m: F1, work: F1, work2: F1,
             for i in range(n):
                 v[i] += dt * work[i] * inv_m[i]
                 x[i] += dt * v[i]
-        elif method == 3:  # velocity Verlet: kick dt/2 with f(x_n), drift dt, kick dt/2 with f(x_{n+1})
+        elif method == 2:  # velocity Verlet: kick dt/2 with f(x_n), drift dt, kick dt/2 with f(x_{n+1})
             for i in range(n):
                 work[i] = _force(x, h, E, i, n)
             for i in range(n):
@@ -167,7 +167,8 @@ def rod_run(x: F1, v: F1, h: F1, E: F1, m: F1, inv_m: F1, work: F1, work2: F1,
         W = _potential(x, h, E, n)
         kin[s] = K
         pot[s] = W
-        if not (K + W <= bound):
+        total = K + W
+        if not (total <= bound) or total - total != 0.0:  # above the bound, nan, or +-inf
             done = s
             break
     return done
@@ -234,7 +235,7 @@ class Rod:
         return np.sqrt(self.E * self.rho)
 
     def omega_max_bound(self) -> float:
-        """Upper bound on the highest angular frequency: Gershgorin on M^-1 K.
+        """Upper bound on the highest angular frequency: Gershgorin (engine.stability (C1)) on M^-1 K.
 
         Row i of K has |diagonal| + |off-diagonal| = 2 (k_{i-1} + k_i), k_j = E_j/h_j.
         For a uniform free rod this is exact: w_max = 2c/h.
@@ -243,8 +244,7 @@ class Rod:
         row = np.zeros(self.n)
         row[:-1] += 2 * k
         row[1:] += 2 * k
-        free = ~self.pinned
-        return float(np.sqrt(np.max(row[free] / self.mass[free])))
+        return float(np.sqrt(lambda_max_from_rows(row, self.mass, ~self.pinned)))
 
     def stable_dt(self) -> float:
         """Largest dt with w_max dt <= 2 (symplectic Euler's and velocity Verlet's limit); conservative."""
@@ -314,121 +314,16 @@ class Rod:
         if method not in METHODS:
             raise ParameterError(f"integrator must be one of {', '.join(METHODS)} (got {method!r})")
         n_steps = int(n_steps)
+        monitor = Monitor(method, dt, energy_bound, dt_stable=self.stable_dt, step_offset=step_offset)
         kin = ti.ndarray(float, max(n_steps, 1))
         pot = ti.ndarray(float, max(n_steps, 1))
-        bound = np.inf if energy_bound is None else float(energy_bound)
         done = rod_run(state.x, state.v, self._h, self._E, self._m, self._inv_m, self._w1, self._w2,
-                       float(dt), n_steps, METHODS[method], kin, pot, bound)
+                       float(dt), n_steps, METHODS[method], kin, pot, monitor.bound)
         K, W = kin.to_numpy()[:n_steps], pot.to_numpy()[:n_steps]
         state.t += dt * (done + (1 if done < n_steps else 0))
-        if done < n_steps:
-            cause = self._blowup_cause(method, dt)
-            exc = BlowUpError(step_offset + done, K[done] + W[done], cause,  # a dt limit only where one exists
-                              self.stable_dt() if method in ("symplectic-euler", "velocity-verlet") else None)
-            exc.kinetic, exc.potential = K[:done + 1], W[:done + 1]  # energies up to the bad step
-            raise exc
+        if done < n_steps:  # energies up to the bad step travel with the error
+            raise monitor.blow_up(done, state.t, K[done] + W[done], K[:done + 1], W[:done + 1])
         return K, W
-
-    def _blowup_cause(self, method: str, dt: float) -> str:
-        limit = self.stable_dt()
-        if method == "forward-euler":
-            return ("forward Euler adds energy at every dt (it is unconditionally unstable without damping); "
-                    "use symplectic-euler, velocity-verlet or backward-euler")
-        if method in ("symplectic-euler", "velocity-verlet"):
-            if dt > limit:
-                return (f"dt = {dt:.6g} s exceeds the CFL limit {limit:.6g} s (w_max dt = "
-                        f"{dt * self.omega_max_bound():.4g} > 2)")
-            return "energy left its bound below the CFL limit (check the initial state and the bound)"
-        return "backward Euler lost energy bound: this should not happen for a linear rod"
-
-
-def amplification(method: str, w2, dt: float) -> np.ndarray:
-    """The per-step matrix of ``method`` for the mode equation q'' = -w^2 q, acting on (q, q').
-
-    With a2 = (w dt)^2:
-      forward Euler     [[1, dt], [-dt w^2, 1]]                   (det 1 + a2: grows)
-      symplectic Euler  [[1 - a2, dt], [-dt w^2, 1]]              (det 1; stable iff a2 <= 4)
-      velocity Verlet   [[1 - a2/2, dt], [-dt w^2 (1 - a2/4), 1 - a2/2]]   (det 1; same limit)
-      backward Euler    [[1, dt], [-dt w^2, 1]] / (1 + a2)        (det 1/(1 + a2): damps)
-    Symplectic Euler and velocity Verlet have the same trace 2 - a2, hence the same eigenvalues
-    (phase per step theta with cos theta = 1 - a2/2): the same dispersion and stability limit.
-    Backward Euler's eigenvalues are 1/(1 -+ i w dt): amplitude 1/sqrt(1 + a2), phase atan(w dt).
-    Returns an array of shape w2.shape + (2, 2)."""
-    w2 = np.asarray(w2, dtype=np.float64)
-    a2 = w2 * dt * dt
-    A = np.empty(w2.shape + (2, 2))
-    if method == "forward-euler":
-        A[..., 0, 0], A[..., 0, 1], A[..., 1, 0], A[..., 1, 1] = 1.0, dt, -dt * w2, 1.0
-    elif method == "symplectic-euler":
-        A[..., 0, 0], A[..., 0, 1], A[..., 1, 0], A[..., 1, 1] = 1.0 - a2, dt, -dt * w2, 1.0
-    elif method == "velocity-verlet":
-        A[..., 0, 0], A[..., 0, 1] = 1.0 - 0.5 * a2, dt
-        A[..., 1, 0], A[..., 1, 1] = -dt * w2 * (1.0 - 0.25 * a2), 1.0 - 0.5 * a2
-    elif method == "backward-euler":
-        A[..., 0, 0], A[..., 0, 1], A[..., 1, 0], A[..., 1, 1] = 1.0, dt, -dt * w2, 1.0
-        A /= (1.0 + a2)[..., None, None]
-    else:
-        raise ParameterError(f"integrator must be one of {', '.join(METHODS)} (got {method!r})")
-    return A
-
-
-class ModalReference:
-    """What ``method`` at step ``dt`` does to a rod's initial state, computed mode by mode in
-    numpy (a reference for lessons and tests, independent of the kernels).
-
-    The initial displacement u0 and velocity v0 are projected on the normal modes
-    (q = Phi^T M u), each mode's (q, q') is multiplied by ``amplification(method, w^2, dt)``
-    to the power of the step count, and the modes are summed again (u = Phi q; pinned nodes 0).
-    """
-
-    def __init__(self, rod: Rod, u0, v0=None, dt: float = 1.0, method: str = "symplectic-euler"):
-        w2, self.phi, self.free = rod.normal_modes()
-        m = rod.mass[self.free]
-        u0 = np.asarray(u0, dtype=np.float64)
-        v0 = np.zeros(rod.n) if v0 is None else np.asarray(v0, dtype=np.float64)
-        self.q0 = self.phi.T @ (m * u0[self.free])
-        self.p0 = self.phi.T @ (m * v0[self.free])
-        self.A = amplification(method, w2, float(dt))
-        self.n, self.dt, self.method = rod.n, float(dt), method
-
-    def modes(self, step: int):
-        """Modal coordinates (q, q') after ``step`` steps."""
-        P = np.linalg.matrix_power(self.A, int(step))
-        return (P[:, 0, 0] * self.q0 + P[:, 0, 1] * self.p0, P[:, 1, 0] * self.q0 + P[:, 1, 1] * self.p0)
-
-    def displacement(self, step: int) -> np.ndarray:
-        """u = x - p at every node after ``step`` steps."""
-        u = np.zeros(self.n)
-        u[self.free] = self.phi @ self.modes(step)[0]
-        return u
-
-    def velocity(self, step: int) -> np.ndarray:
-        v = np.zeros(self.n)
-        v[self.free] = self.phi @ self.modes(step)[1]
-        return v
-
-    def displacements(self, steps) -> np.ndarray:
-        """u after each of the non-decreasing ``steps`` (one row per step), advancing the modes from
-        one step to the next and summing them with one matrix product (much faster than calling
-        :meth:`displacement` for each)."""
-        steps = [int(s) for s in steps]
-        if any(b < a for a, b in zip(steps, steps[1:])) or (steps and steps[0] < 0):
-            raise ValueError("steps must be non-negative and non-decreasing")
-        q, p = self.q0, self.p0
-        Q = np.empty((q.size, len(steps)))
-        powers, prev = {}, 0
-        for j, s in enumerate(steps):
-            d = s - prev
-            if d:
-                P = powers.get(d)
-                if P is None:
-                    P = powers[d] = np.linalg.matrix_power(self.A, d)
-                q, p = P[:, 0, 0] * q + P[:, 0, 1] * p, P[:, 1, 0] * q + P[:, 1, 1] * p
-            Q[:, j] = q
-            prev = s
-        U = np.zeros((len(steps), self.n))
-        U[:, self.free] = (self.phi @ Q).T
-        return U
 
 
 class RodState:

@@ -63,9 +63,9 @@ import numpy as np
 import taichi as ti
 
 from engine.errors import ParameterError
-from engine.integrators.explicit import gershgorin_lambda_max, lambda_max_power
+from engine.stability import gershgorin_lambda_max, lambda_max_power
 from engine.linalg import SOLVERS, SolverError, make_solver
-from engine.fields import (axpy_into, copy_vec3, dot_vec3, float_dtype, mass_dot, scalar_array, vec3_array,
+from engine.fields import (scratch_vec3, axpy_into, copy_vec3, dot_vec3, float_dtype, mass_dot, scalar_array, vec3_array,
                            vec3_ndarray, zero_vec3)
 from engine.model import Model
 
@@ -148,7 +148,7 @@ def solve_static(model: Model, x0=None, tol: float = 1e-10, max_iter: int = 100,
     lin = make_solver(solver, tol=linear_tol, max_iter=max_linear_iter)
     x = vec3_ndarray(n, x_start)
     xref = vec3_ndarray(n, x_start)
-    f, dx, trial = model.work_vec3("st_f"), model.work_vec3("st_dx"), model.work_vec3("st_trial")
+    f, dx, trial = scratch_vec3(model, "st_f"), scratch_vec3(model, "st_dx"), scratch_vec3(model, "st_trial")
     mass = model.mass[:, None]
     g = model.gravity[None, :]
     free = model.free

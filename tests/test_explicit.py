@@ -6,7 +6,9 @@ import pytest
 import scipy.linalg as sla
 
 from engine import diagnostics, integrators
-from engine.integrators.explicit import BlowUpError, run, stable_dt_estimate
+from engine.errors import BlowUpError
+from engine.integrators.explicit import run
+from engine.stability import stable_dt_estimate
 from engine.model import Model
 
 

@@ -1,10 +1,10 @@
-"""One-launch symplectic-Euler step (engine/integrators/fused_step.py): the same arithmetic as the
+"""One-launch symplectic-Euler step (engine.integrators.kernels.one_launch_step): the same arithmetic as the
 generic five-kernel path, so the states agree bit for bit."""
 import numpy as np
 import pytest
 
-from engine.integrators.explicit import SymplecticEuler, stable_dt_estimate
-from engine.integrators.fused_step import fused_symplectic_step
+from engine.integrators.explicit import SymplecticEuler, one_launch_plan as fused_symplectic_step
+from engine.stability import stable_dt_estimate
 from engine.model import Model
 from engine.scenes import cloth
 

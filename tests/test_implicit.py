@@ -10,7 +10,8 @@ from engine import diagnostics, integrators, mesh
 from engine.energies.bending import BendingEnergy
 from engine.energies.springs import SpringEnergy
 from engine.integrators import BackwardEuler, SolverError, make_integrator
-from engine.integrators.explicit import run, stable_dt_estimate
+from engine.integrators.explicit import run
+from engine.stability import stable_dt_estimate
 from engine.model import Model
 
 

@@ -20,7 +20,7 @@ from scipy.integrate import solve_ivp
 
 from engine import diagnostics
 from engine.integrators import BackwardEuler, SolverError, get, make_integrator
-from engine.integrators.explicit import lambda_max_power
+from engine.stability import lambda_max_power
 from engine.linalg import make_solver
 from engine.fields import vec3_ndarray
 from engine.model import Model

@@ -10,7 +10,7 @@ import scipy.linalg as sla
 
 from engine import diagnostics
 from engine.energies.springs import SpringEnergy, dense_hessian_from_blocks
-from engine.integrators.explicit import gershgorin_lambda_max, lambda_max_power, stable_dt_estimate
+from engine.stability import gershgorin_lambda_max, lambda_max_power, stable_dt_estimate
 from engine.errors import ModelError
 from engine.fields import vec3_ndarray
 from engine.model import Model, State

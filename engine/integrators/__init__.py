@@ -1,19 +1,22 @@
 """Time integrators picked by name, so lessons, CLI and benchmarks can all say
 ``--integrator symplectic-euler``.
 
-Every integrator has ``name``, ``implicit`` and ``step(model, state, dt, n_steps=1)``; explicit
-ones also ``begin(model, state)`` / ``advance(model, state, dt)`` (used by
-:func:`engine.integrators.explicit.run` for per-step blow-up checks).
-Further integrators join with :func:`register`.  ``backward-euler``
-(:mod:`engine.integrators.implicit`, default linear solver PCG) is registered here; use
-:func:`make_integrator` to get one with other options (``--solver``, ``--tol``, Newton iterations).
+Every integrator has ``name``, ``implicit``, ``step(model, state, dt, n_steps=1, monitor=None)`` and
+``begin(model, state)`` / ``advance(model, state, dt)`` (one step), which the one run loop
+(:mod:`engine.integrators.run`) drives. Further integrators join with :func:`register`.
+``backward-euler`` (:mod:`engine.integrators.implicit`, default linear solver PCG) is registered
+here; use :func:`make_integrator` to get one with other options (``--solver``, ``--tol``, Newton
+iterations). :data:`METHODS` is the one table of method codes the many-steps kernels use.
 """
 from __future__ import annotations
 
-from engine.integrators.explicit import (BlowUpError, ForwardEuler, SymplecticEuler, VelocityVerlet, run,
-                                         stable_dt_estimate)
+from engine.errors import BlowUpError
+from engine.integrators.explicit import ForwardEuler, SymplecticEuler, VelocityVerlet, run
 from engine.integrators.implicit import BackwardEuler
+from engine.integrators.kernels import METHODS
+from engine.integrators.monitor import Monitor
 from engine.linalg import SOLVERS, SolverError
+from engine.stability import stable_dt_estimate
 
 INTEGRATORS: dict[str, object] = {
     "forward-euler": ForwardEuler(),
@@ -63,5 +66,5 @@ def make_integrator(name: str, solver: str | None = None, tol: float | None = No
     return get(name)
 
 
-__all__ = ["INTEGRATORS", "get", "register", "names", "make_integrator", "BackwardEuler", "SOLVERS",
-           "SolverError", "BlowUpError", "run", "stable_dt_estimate"]
+__all__ = ["INTEGRATORS", "METHODS", "get", "register", "names", "make_integrator", "BackwardEuler", "SOLVERS",
+           "SolverError", "BlowUpError", "Monitor", "run", "stable_dt_estimate"]

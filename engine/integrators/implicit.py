@@ -54,7 +54,7 @@ import taichi as ti
 
 from engine.errors import ParameterError
 from engine.linalg import SOLVERS, LinearSolver, SolverError, make_solver
-from engine.fields import axpy_into, copy_vec3, dot_vec3, scalar_array, sub_into, vec3_array, zero_vec3
+from engine.fields import scratch_vec3, axpy_into, copy_vec3, dot_vec3, scalar_array, sub_into, vec3_array, zero_vec3
 from engine.model import Model, State
 
 ARMIJO_C1 = 1e-4
@@ -66,16 +66,6 @@ EXACT_BELOW = 1e-2  # try the exact Hessian once |grad Phi| < EXACT_BELOW |grad 
 # --------------------------------------------------------------------------------------------
 # Kernels (one pass over the vertices each; pinned vertices: inv_mass == 0)
 # --------------------------------------------------------------------------------------------
-
-def _weight_norm(model: Model) -> float:
-    """|M g| over the free vertices (N): 0 without gravity."""
-    cached = getattr(model, "_weight_norm_cache", None)
-    if cached is None:
-        m = np.asarray(model.mass, dtype=float)[np.asarray(model.free)]
-        cached = float(np.sqrt(np.sum(m * m)) * np.linalg.norm(np.asarray(model.gravity, dtype=float)))
-        model._weight_norm_cache = cached
-    return cached
-
 
 @ti.kernel
 def _be_residual(x: vec3_array, xn: vec3_array, v: vec3_array, f: vec3_array, mass: scalar_array,
@@ -211,10 +201,13 @@ class BackwardEuler:
     def begin(self, model: Model, state: State) -> None:
         """Nothing to prepare (kept for the integrator protocol)."""
 
-    def step(self, model: Model, state: State, dt: float, n_steps: int = 1) -> None:
+    def step(self, model: Model, state: State, dt: float, n_steps: int = 1, monitor=None) -> None:
+        from engine import diagnostics
         dt = float(dt)
-        for _ in range(int(n_steps)):
+        for s in range(int(n_steps)):
             self.advance(model, state, dt)
+            if monitor is not None:
+                monitor.check(s, state.t, diagnostics.total_energy(model, state))
 
     # -- one step ------------------------------------------------------------------------------
     def _objective(self, model, x, xn, v, dt, W_n, work) -> float:
@@ -234,7 +227,7 @@ class BackwardEuler:
         dt = float(dt)
         if not (math.isfinite(dt) and dt > 0.0):
             raise ParameterError(f"dt must be finite and > 0 (got {dt!r})")
-        work = {k: model.work_vec3("be_" + k) for k in ("xn", "f", "rhs", "dx", "trial", "d", "hq")}
+        work = {k: scratch_vec3(model, "be_" + k) for k in ("xn", "f", "rhs", "dx", "trial", "d", "hq")}
         x, v = state.x, state.v
         xn, f, rhs, dx, trial = work["xn"], work["f"], work["rhs"], work["dx"], work["trial"]
         inv_mass = model.inv_mass_nd
@@ -268,7 +261,7 @@ class BackwardEuler:
                 # the scale the tolerance is relative to: |grad Phi(x_n)|, but at least the weight
                 # |M g| (a settled hanging body has a round-off-sized gradient that Newton cannot
                 # reduce by newton_tol again)
-                g0 = max(gnorm, _weight_norm(model))
+                g0 = max(gnorm, model.weight_norm)
             if gnorm <= self.newton_tol * g0 or gnorm == 0.0:
                 info.newton_converged = True
                 break

@@ -1,0 +1,118 @@
+"""The one run loop: advance a state in chunks, watch its energy, hand energies and frames out.
+
+:func:`run` drives any ``advance(chunk, done) -> (steps, kinetic, potential)``; :func:`model_stepper`
+makes one for a :class:`engine.model.Model` and an integrator, choosing the fastest path the model's
+energies allow (:func:`engine.integrators.explicit.many_steps_plan`: many steps per kernel launch for
+small spring-only models), and the rod scene has its own many-steps kernel with the same contract.
+Energies are sampled after every ``energy_every``-th step (and the last); a sample that is not
+finite or above the monitor's bound stops the run at that step with the monitor's
+:class:`engine.errors.BlowUpError`, which carries the energies up to the bad step.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from engine import diagnostics
+from engine.errors import BlowUpError
+from engine.integrators.monitor import Monitor
+
+
+def model_stepper(model, state, dt: float, integrator, monitor: Monitor, n_total: int, energy_every: int = 1,
+                  substeps: int = 1, check_interrupt=None):
+    """``advance(chunk, done)`` for ``integrator`` on ``model``: ``chunk`` steps of size dt (each made of
+    ``substeps`` steps of dt/substeps), energies after every ``energy_every``-th step and after step
+    ``n_total``; a linear-solver failure of an implicit step is reported as the monitor's blow-up."""
+    from engine.integrators.explicit import many_steps_plan
+    from engine.linalg import SolverError
+
+    h = dt / substeps
+    many = None
+    if energy_every == 1 and substeps == 1:
+        many = many_steps_plan(model, integrator)
+    if many is not None:
+        def advance(chunk, done):
+            if check_interrupt is not None:
+                check_interrupt()
+            monitor.step_offset = done
+            K, W = many(state, dt, chunk, monitor)
+            return np.arange(done + 1, done + chunk + 1), K, W
+        return advance
+
+    begun = []
+
+    def advance(chunk, done):
+        if not begun:
+            begun.append(True)
+            integrator.begin(model, state)
+        steps, kin, pot = [], [], []
+        monitor.step_offset = 0
+        for s in range(done + 1, done + chunk + 1):
+            if check_interrupt is not None:
+                check_interrupt()
+            try:
+                for _ in range(substeps):
+                    integrator.advance(model, state, h)
+            except SolverError as err:  # the integrator left the state at the last good step
+                E = diagnostics.total_energy(model, state)
+                exc = monitor.solver_failure(s - 1, state.t, E, err)
+                exc.steps, exc.kinetic, exc.potential = np.asarray(steps), np.asarray(kin), np.asarray(pot)
+                raise exc from None
+            if s % energy_every == 0 or s == n_total:
+                K = diagnostics.kinetic_energy(model, state)
+                W = model.potential_energy(state.x)
+                steps.append(s)
+                kin.append(K)
+                pot.append(W)
+                if monitor.exceeded(K + W):
+                    exc = monitor.blow_up(s - 1, state.t, K + W)
+                    exc.steps, exc.kinetic, exc.potential = np.asarray(steps), np.asarray(kin), np.asarray(pot)
+                    raise exc
+        return np.asarray(steps, dtype=np.int64), np.asarray(kin), np.asarray(pot)
+    return advance
+
+
+def run(advance, n_steps: int, every: int, on_energies=None, on_frame=None, check_interrupt=None):
+    """Advance ``n_steps`` steps in chunks of ``every`` (the last may be shorter).
+
+    ``on_frame(step)`` is called at step 0 and after every chunk (to draw or measure the state);
+    ``on_energies(steps, kinetic, potential)`` after every chunk with its energy samples. On a
+    blow-up the samples up to the bad step are handed out, ``on_frame`` is called at the bad step,
+    and the error is re-raised with ``steps``/``kinetic``/``potential`` of the whole run so far.
+    Returns (steps, kinetic, potential) of the whole run."""
+    all_s, all_k, all_w = [], [], []
+    if on_frame is not None:
+        on_frame(0)
+    done = 0
+    n_steps = int(n_steps)
+    every = max(int(every), 1)
+    while done < n_steps:
+        if check_interrupt is not None:
+            check_interrupt()
+        chunk = min(every, n_steps - done)
+        try:
+            steps, K, W = advance(chunk, done)
+        except BlowUpError as exc:
+            steps = getattr(exc, "steps", None)
+            K = np.asarray(exc.kinetic if exc.kinetic is not None else [])
+            W = np.asarray(exc.potential if exc.potential is not None else [])
+            if steps is None:
+                steps = np.arange(done + 1, done + 1 + len(K))
+            if on_energies is not None and len(K):
+                on_energies(np.asarray(steps), K, W)
+            if on_frame is not None:
+                on_frame(exc.step + 1)
+            exc.steps = np.concatenate(all_s + [np.asarray(steps, dtype=np.int64)])
+            exc.kinetic = np.concatenate(all_k + [K])
+            exc.potential = np.concatenate(all_w + [W])
+            raise
+        all_s.append(np.asarray(steps, dtype=np.int64))
+        all_k.append(np.asarray(K))
+        all_w.append(np.asarray(W))
+        if on_energies is not None and len(K):
+            on_energies(np.asarray(steps), np.asarray(K), np.asarray(W))
+        done += chunk
+        if on_frame is not None:
+            on_frame(done)
+    if not all_s:
+        return np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0)
+    return np.concatenate(all_s), np.concatenate(all_k), np.concatenate(all_w)
