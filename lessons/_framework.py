@@ -12,6 +12,7 @@ import dataclasses
 import json
 import math
 import os
+import re
 import sys
 import textwrap
 import time
@@ -147,10 +148,17 @@ class Stepping:
 
 # ----------------------------------------------------------------------- experiments
 
+ID_PATTERN = re.compile(r"[a-z0-9]+(?:[.-][a-z0-9]+)*")  # a slug: "pulse-speed-nu0.25"
+
+
 @dataclass
 class Experiment:
     """One measured claim. ``compare``: 'rel' |m-t| <= tol |t|; 'abs' |m-t| <= tol;
-    '<=' m <= t (t is a bound); '>=' m >= t."""
+    '<=' m <= t (t is a bound); '>=' m >= t.
+
+    ``id``: a slug unique within the lesson that names the experiment whatever the claim's text
+    (which may carry measured numbers or the integrator's name) and whatever options the run had;
+    results and tests find experiments by it."""
 
     claim: str
     theory: float
@@ -158,10 +166,13 @@ class Experiment:
     tolerance: float = 0.0
     compare: str = "rel"
     unit: str = ""
+    id: str = field(default="", kw_only=True)
 
     def __post_init__(self):
         if self.compare not in COMPARISONS:
             raise ValueError(f"compare must be one of {COMPARISONS}")
+        if self.id and not ID_PATTERN.fullmatch(self.id):
+            raise ValueError(f"experiment id must be a slug like 'pulse-speed-nu0.25' (got {self.id!r})")
         self.theory = float(self.theory)
         self.measured = float(self.measured)
         self.tolerance = float(self.tolerance)
@@ -196,7 +207,7 @@ class Experiment:
     def to_dict(self, lesson: str, stage: int, stage_title: str = "") -> dict:
         def num(v):
             return v if math.isfinite(v) else None
-        return dict(lesson=lesson, stage=stage, stage_title=stage_title, claim=self.claim,
+        return dict(lesson=lesson, stage=stage, stage_title=stage_title, id=self.id, claim=self.claim,
                     theory=num(self.theory), measured=num(self.measured), tolerance=self.tolerance,
                     comparison=self.compare, unit=self.unit, passed=self.passed)
 
@@ -239,6 +250,28 @@ class Stage:
     title: str
     narrative: str
     run: Callable[["StageContext"], list[Experiment]]
+
+
+def narrated_stages(package: str, runs: list[tuple[str, Callable[["StageContext"], list[Experiment]]]]) -> list[Stage]:
+    """The stages of a lesson package, (title, run) in order, each narrated by its section of the
+    package's ``narrative.md``: a section starts with the line ``## <title>``, and its text (without
+    the blank lines around it) is the narrative that is printed and recorded. Anything above the
+    first section is a preamble. The sections must be the stages, in the same order."""
+    from importlib.resources import files
+
+    text = files(package).joinpath("narrative.md").read_text(encoding="utf-8")
+    titles, bodies = [], []
+    for line in text.splitlines():
+        if line.startswith("## "):
+            titles.append(line[3:].strip())
+            bodies.append([])
+        elif bodies:
+            bodies[-1].append(line)
+    wanted = [title for title, _ in runs]
+    if titles != wanted:
+        raise ValueError(f"{package}/narrative.md: sections {titles} do not match the stages {wanted}")
+    return [Stage(title, "\n" + "\n".join(body).strip("\n") + "\n", run)
+            for (title, run), body in zip(runs, bodies)]
 
 
 @dataclass
@@ -349,7 +382,8 @@ def run_lesson(lesson: Lesson, cfg, rec, stages: list[int] | None = None, out=sy
         except BlowUpError as exc:
             rec.mark(str(exc), level="ERROR")
             print(f"   error: {exc}", file=err, flush=True)
-            experiments = [Experiment("stage ran without an unexpected blow-up", 0, exc.step + 1, 0, "<=")]
+            experiments = [Experiment("stage ran without an unexpected blow-up", 0, exc.step + 1, 0, "<=",
+                                      id=f"no-blow-up-stage{index}")]
         print(text_table(experiments), file=out)
         used = _summarise_integrators(ctx.integrators_used)
         if used:

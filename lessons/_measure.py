@@ -103,16 +103,17 @@ def modal_tracks(rod, u0, v0, dt: float, method: str, steps: list[int], regions=
 
 
 def expect(ctx, method: str, claim: str, undamped: float, measured: float, predicted, tol: float,
-           compare: str = "rel", unit: str = "") -> Experiment:
+           compare: str = "rel", unit: str = "", *, id: str = "") -> Experiment:
     """A scene experiment: against the undamped theory when ``predicted`` is None (a symplectic
-    method), else against the scheme's own prediction, the claim then naming the undamped value."""
+    method), else against the scheme's own prediction, the claim then naming the undamped value
+    (the id is the same either way)."""
     if predicted is None:
-        return Experiment(claim, undamped, measured, tol, compare, unit)
+        return Experiment(claim, undamped, measured, tol, compare, unit, id=id)
     ratio = f", ratio {predicted / undamped:.4f}" if undamped else ""
     ctx.progress(f"{claim}: {method} predicts {predicted:.6g} (undamped theory {undamped:.6g}{ratio}); "
                  f"measured {measured:.6g}")
     return Experiment(f"{claim}: {method}'s modal prediction (undamped theory {undamped:.4g})",
-                      predicted, measured, tol, compare, unit)
+                      predicted, measured, tol, compare, unit, id=id)
 
 
 # ------------------------------------------------------------------ damped oscillations
