@@ -148,8 +148,8 @@ class Model:
         self.mass_nd = scalar_ndarray(m)
         self.inv_mass_nd = scalar_ndarray(inv)
         self.X_nd = vec3_ndarray(n, X)
-        self.energies: list[Energy] = []
-        self._work: dict[str, object] = {}
+        self.energies: tuple[Energy, ...] = ()
+        self._frozen = False
         for e in energies:
             self.add_energy(e)
 
@@ -213,8 +213,17 @@ class Model:
     def add_energy(self, energy: Energy) -> Energy:
         if getattr(energy, "n_vertices", self.n) != self.n:
             raise ModelError(f"{energy.name} energy is defined on {energy.n_vertices} vertices, model has {self.n}")
-        self.energies.append(energy)
+        if self._frozen:
+            raise ModelError(f"cannot add the {energy.name} energy: the model is frozen once a state has been made "
+                             f"from it (add every energy before make_state)")
+        object.__setattr__(self, "energies", self.energies + (energy,))
         return energy
+
+    def __setattr__(self, name, value):
+        if getattr(self, "_frozen", False):
+            raise AttributeError(f"a Model does not change once a state has been made from it (setting {name!r}); "
+                                 f"keep per-run data with the solver, or build a new Model")
+        object.__setattr__(self, name, value)
 
     @property
     def springs(self):
@@ -233,14 +242,13 @@ class Model:
             if bad.size:  # a simulation started from it would only blow up at its first step
                 raise ModelError(f"initial {what}: vertex {bad[0]} is not finite ({a[bad[0]].tolist()})")
         v[self.pinned] = 0.0
+        object.__setattr__(self, "_frozen", True)  # built: energies, masses and pins are fixed from here on
         return State.from_numpy(x, v, t)
 
     def work_vec3(self, name: str):
-        """A per-model scratch vec3 ndarray, allocated once (integrators use these)."""
-        a = self._work.get(name)
-        if a is None:
-            a = self._work[name] = vec3_ndarray(self.n)
-        return a
+        """TEMPORARY alias of :func:`engine.fields.scratch_vec3` (scratch is not kept on the model)."""
+        from engine.fields import scratch_vec3
+        return scratch_vec3(self, name)
 
     # -- energies and forces -----------------------------------------------------------------
     def elastic_energy(self, x) -> float:
