@@ -304,7 +304,7 @@ def test_backward_euler_with_cholesky_on_one_chain():
     """--solver cholesky reaches the scheme's prediction too (one chain: the cost is in the factorisations)."""
     from lessons._framework import StageContext, Stepping
     from engine.recorder import NullRecorder
-    from lessons import springs
+    from lessons.springs import stages as springs
     cfg = SpringsConfig(**SMALL)
     ctx = StageContext(LESSON, cfg, NullRecorder(), 4, quiet=True,
                        stepping=Stepping(integrator="backward-euler", solver="cholesky"))
