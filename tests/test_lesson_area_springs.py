@@ -18,7 +18,8 @@ from engine.waves import (ModeProbe, cauchy_born_tensor, christoffel, max_speed,
                           relaxed_stiffness_2d, young_poisson)
 from lessons._framework import validate_config
 from lessons._measure import be_damping_rate, central_gradient, damped_frequency
-from lessons.area_springs import LESSON, AreaSpringsConfig, bulk_tensor
+from lessons.area_springs import LESSON, AreaSpringsConfig
+from lessons.area_springs.stages import bulk_tensor
 from tests.helpers import assert_all_passed, run_stage
 
 

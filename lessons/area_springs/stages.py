@@ -1,0 +1,538 @@
+"""The stages of ``area-springs`` (their narratives are in narrative.md), the meshes, the
+standing-wave runner and the drawings.
+
+Every standing-wave run is a scene run: velocity Verlet unless ``--integrator`` chooses another
+integrator. Under backward Euler the step is chosen from the phase (see :func:`standing_wave`)
+and each wave stage adds the experiments of :func:`be_experiments` on the scheme's own damping.
+"""
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import math
+
+import numpy as np
+
+from engine import mesh as M
+from engine.integrators.explicit import stable_dt_estimate
+from engine.model import Model
+from engine.waves import (ModeProbe, cauchy_born_tensor, christoffel, max_speed, phase_frequency,
+                          relaxed_stiffness_2d, young_poisson)
+
+from .._framework import Experiment
+from .._measure import be_damping_rate, damped_frequency, edge_strain, vertex_strain
+from .._scene import simulate
+
+RUN_PERIODS = 0.3   # each standing-wave run lasts this fraction of a period (phase 0 -> 1.9 rad)
+BOX_LENGTH = 1.0    # m, the tet box of stage 1 and the cell size unit of stage 4
+SMALL_JITTER = 0.1  # a mild jitter whose affine prediction is still close
+BE_PHASE_STEP = 0.05  # w dt of the backward-Euler runs: phase lag 1 - arctan(w dt)/(w dt) = 8.3e-4
+BE_PHASE_LAG = 1e-3   # the bound on that lag, a tenth of the tightest tolerance (1e-2) of the speeds
+BE_DAMPING_TOL = 0.03  # fitted / predicted decay rate: the decay over a run is only ~5%, and the probe
+                       # also sees a little of other motion (up to 1.7% measured on the regular meshes)
+
+
+# ------------------------------------------------------------------ meshes and runs
+
+def area_model(mesh3: M.Mesh, E: float, rho: float, pinned=None) -> tuple[Model, np.ndarray, np.ndarray]:
+    """Area/volume-scaled springs on a 3D-embedded mesh: (model, c_e = E A_e, lumped masses)."""
+    c = E * M.edge_measure(mesh3)
+    mass = M.lumped_masses(mesh3, rho)
+    return Model.from_springs(mesh3.vertices, mesh3.edges, c=c, mass=mass, pinned=pinned), c, mass
+
+
+def bulk_tensor(mesh: M.Mesh, c: np.ndarray, h: float) -> np.ndarray:
+    """Cauchy-Born C of the infinite lattice from the springs of 3 x 3 x 3 interior cells of a
+    tet box (midpoints in a window offset by h/4, so every spring class is counted once per
+    cell), for any coefficients c (also the constant-k springs)."""
+    X, e = mesh.vertices, mesh.edges
+    mid = 0.5 * (X[e[:, 0]] + X[e[:, 1]])
+    lo = X.min(axis=0) + 1.25 * h
+    inside = np.all((mid >= lo) & (mid < lo + 3 * h), axis=1)
+    return cauchy_born_tensor(X, e[inside], c[inside], 27 * h ** 3)
+
+
+def standing_wave(ctx, name: str, model: Model, mass: np.ndarray, direction, polarization, k: float,
+                  origin, region: np.ndarray, c_guess: float, draw=None, fits: list | None = None) -> float:
+    """Start u = A cos(k (X - origin).n) p from rest, run RUN_PERIODS of a period (sized with
+    ``c_guess``; the measurement does not use it) with velocity Verlet (or the integrator of
+    ``--integrator``), and return the measured phase speed w/k from the amplitude over ``region``
+    (engine.waves).
+
+    Under backward Euler (stable at any step) the step is BE_PHASE_STEP/(k c_guess), whatever the
+    CFL limit, so that the scheme's phase lag 1 - arctan(w dt)/(w dt) is the same 8e-4 in every
+    run, and the amplitude, which the scheme damps, is fitted as a(0) exp(-gamma t) cos(w t); the
+    fit (dt, w, gamma) is appended to ``fits``."""
+    cfg = ctx.cfg
+    X = model.X
+    probe = ModeProbe(X, mass, direction, polarization, k, origin, region)
+    A = cfg.strain / k  # peak strain k A
+    state = model.make_state(X + probe.displacement(A))
+    implicit = ctx.integrator_name("velocity-verlet") == "backward-euler"
+    dt = BE_PHASE_STEP / (k * c_guess) if implicit else cfg.cfl * stable_dt_estimate(model)
+    n_steps = max(8, int(math.ceil(RUN_PERIODS * 2 * math.pi / (k * c_guess) / dt)))
+    times, amps = [], []
+
+    def observe(step, st):
+        times.append(step * dt)
+        amps.append(probe.amplitude(st.x.to_numpy()))
+
+    log = _frame_logger(draw, dt, n_steps, A, cfg.frames) if draw is not None and ctx.rec.enabled else None
+    W0 = model.potential_energy(state.x)
+    with _pcg_for_3d_boxes(ctx, name, model, implicit):
+        simulate(ctx, name, model, state, dt, n_steps, integrator="velocity-verlet", every=1,
+                 energy_bound=10 * W0, observe=observe, log=log, energy_every=4)
+    if not implicit:
+        return phase_frequency(np.asarray(times), np.asarray(amps)) / k
+    w, gamma = damped_frequency(np.asarray(times), np.asarray(amps))
+    if fits is not None:
+        fits.append(dict(name=name, dt=dt, w=w, gamma=gamma))
+    ctx.progress(f"{name}: backward Euler, dt = {dt:.4g} s (w dt = {w * dt:.4f}), fitted damping "
+                 f"{gamma:.4g} 1/s, the scheme's {be_damping_rate(w, dt):.4g} 1/s")
+    return w / k
+
+
+def _frame_logger(draw, dt: float, n_steps: int, amplitude: float, frames: int):
+    """log(rec, state) drawing about ``frames`` frames of a run (and its last step)."""
+    every = max(1, n_steps // frames)
+
+    def log(rec, st):
+        step = int(round(st.t / dt))
+        if step % every == 0 or step == n_steps:
+            draw(rec, st.x.to_numpy().astype(np.float64), amplitude)
+    return log
+
+
+@contextlib.contextmanager
+def _pcg_for_3d_boxes(ctx, name: str, model: Model, implicit: bool):
+    """Under backward Euler with --solver cholesky, a run on a 3D box uses pcg instead: a direct
+    LL^T of a 3D lattice fills in far more than a sheet's (Eigen's simplicial factorisation, one
+    per step, takes ~1 s for the smallest box here, 3249 vertices, and ~40 s at 10^4; the boxes
+    go up to 107217 vertices). Sheets keep cholesky."""
+    stepping = ctx.stepping
+    if implicit and stepping.solver == "cholesky" and np.ptp(model.X[:, 2]) > 0:
+        ctx.progress(f"{name}: --solver cholesky is impractical for this 3D box ({model.n} vertices; a direct "
+                     f"LL^T of a 3D lattice fills in: ~1 s per step at 3249 vertices, ~40 s at 10^4): this run "
+                     f"uses pcg")
+        ctx.stepping = dataclasses.replace(stepping, solver="pcg")
+    try:
+        yield
+    finally:
+        ctx.stepping = stepping
+
+
+def be_experiments(ctx, where: str, fits: list, jittered: list = ()) -> list:
+    """Under backward Euler (``fits`` not empty): the fitted damping of the runs on regular meshes
+    (``fits``) against the scheme's own, and the largest phase lag of all runs. ``where`` prefixes
+    the experiments' ids (every wave stage has these two)."""
+    if not fits:
+        return []
+    ratios = [f["gamma"] / be_damping_rate(f["w"], f["dt"]) for f in fits]
+    worst = max(ratios, key=lambda q: abs(q - 1))
+    every = list(fits) + list(jittered)
+    phase = max(1 - f["w"] * f["dt"] / math.tan(f["w"] * f["dt"]) for f in every)
+    ctx.progress("backward Euler: fitted damping / the scheme's on the regular meshes: "
+                 + ", ".join(f"{q:.4f}" for q in ratios) + "; largest phase lag 1 - arctan(W dt)/(W dt) = "
+                 f"{phase:.2e} ({len(every)} runs)")
+    return [
+        Experiment(f"backward Euler damps each wave by 1/sqrt(1 + (W dt)^2) per step: fitted / scheme's decay "
+                   f"rate (worst of {len(fits)} runs)", 1.0, worst, BE_DAMPING_TOL,
+                   id=f"{where}-backward-euler-damping"),
+        Experiment(f"backward Euler's phase lag 1 - arctan(W dt)/(W dt) at the chosen dt (largest of {len(every)})",
+                   BE_PHASE_LAG, phase, 0, "<=", id=f"{where}-backward-euler-phase-lag"),
+    ]
+
+
+def _colors(strain, scale):
+    from engine.recorder import strain_colors  # rerun only when recording
+    return strain_colors(strain, scale)
+
+
+def sheet_drawer(mesh3: M.Mesh, spacing: float, k: float):
+    """Draw a sheet: triangles with per-vertex strain colours and strain-coloured springs;
+    displacements magnified so the wave's amplitude shows as a quarter spacing."""
+    X, E, L, T = mesh3.vertices, mesh3.edges, mesh3.rest_lengths, mesh3.triangles
+
+    def draw(rec, x, amplitude):
+        s = edge_strain(x, E, L)
+        scale = k * amplitude
+        xd = X + (0.25 * spacing / amplitude) * (x - X)
+        rec.mesh(xd, T, vertex_colors=_colors(vertex_strain(len(X), E, s), scale))
+        rec.springs(xd, E, s, scale=scale)
+    return draw
+
+
+def solid_drawer(mesh: M.Mesh, spacing: float, k: float, springs: bool = True):
+    """Draw a tet box by its surface (vertex strain colours) and the springs on it."""
+    faces = M.boundary_faces(mesh)
+    verts, inv = np.unique(faces, return_inverse=True)
+    faces_local = inv.reshape(-1, 3)
+    pairs = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    surf = np.unique(pairs, axis=0)
+    X, E, L = mesh.vertices, mesh.edges, mesh.rest_lengths
+    Ls = np.linalg.norm(X[surf[:, 1]] - X[surf[:, 0]], axis=1)
+
+    def draw(rec, x, amplitude):
+        scale = k * amplitude
+        xd = X + (0.25 * spacing / amplitude) * (x - X)
+        vs = vertex_strain(len(X), E, edge_strain(x, E, L))
+        rec.mesh(xd[verts], faces_local, vertex_colors=_colors(vs[verts], scale))
+        if springs:
+            rec.springs(xd, surf, edge_strain(x, surf, Ls), scale=scale)
+    return draw
+
+
+def _unit(v) -> np.ndarray:
+    v = np.asarray(v, dtype=np.float64)
+    return v / np.linalg.norm(v)
+
+
+def square_domain_cells(half: float, spacing: float) -> int:
+    return 2 * int(math.ceil(half / spacing))
+
+
+# ---------------------------------------------------------------------------- stage 1
+
+def stage_refinement(ctx):
+    cfg = ctx.cfg
+    speeds = {"area": [], "k": []}
+    fits = []
+    k_spring = None
+    for level, nc in enumerate(cfg.box_cells * 2 ** i for i in range(3)):
+        k_spring = _refinement_level(ctx, level, nc, k_spring, speeds, fits)
+    a, kk = speeds["area"], speeds["k"]
+    return [
+        Experiment("one k for all springs: speed ratio c(h/2)/c(h) = 2 (c ~ 1/h)", 2.0, kk[1] / kk[0], 2e-2,
+                   id="one-k-ratio-h2"),
+        Experiment("one k for all springs: speed ratio c(h/4)/c(h) = 4 (c ~ 1/h)", 4.0, kk[2] / kk[0], 2e-2,
+                   id="one-k-ratio-h4"),
+        Experiment("k tuned on the coarse box: same speed as E*A springs there", 1.0, kk[0] / a[0], 1e-2,
+                   id="one-k-tuned-on-coarse-box"),
+        Experiment("volume-scaled springs: speed ratio c(h/2)/c(h) = 1", 1.0, a[1] / a[0], 1e-2,
+                   id="volume-scaled-ratio-h2"),
+        Experiment("volume-scaled springs: speed ratio c(h/4)/c(h) = 1", 1.0, a[2] / a[0], 1e-2,
+                   id="volume-scaled-ratio-h4"),
+    ] + be_experiments(ctx, "refinement", fits)
+
+
+def _refinement_level(ctx, level: int, nc: int, k_spring, speeds: dict, fits: list):
+    """The standing compression wave on the 1 m box of ``nc`` cells, once with volume-scaled
+    springs and once with one constant k for every spring (tuned on the coarsest box so that
+    both laws agree there: returned, to be passed to the finer levels); the speeds are appended
+    to ``speeds``."""
+    cfg = ctx.cfg
+    k = math.pi / BOX_LENGTH
+    h = BOX_LENGTH / nc
+    probe_mesh = M.tet_box(6, 6, 6, size=5 * h)  # the same lattice, for the bulk tensors
+    C_area = bulk_tensor(probe_mesh, cfg.E * probe_mesh.edge_measure, h)
+    if k_spring is None:  # k = 1 N gives C proportional to k: scale k to match the area law
+        s_area = christoffel(C_area, [1, 0, 0], cfg.rho)[0][-1]
+        s_one = christoffel(bulk_tensor(probe_mesh, probe_mesh.rest_lengths, h), [1, 0, 0], cfg.rho)[0][-1]
+        k_spring = (s_area / s_one) ** 2
+        ctx.progress(f"constant spring stiffness tuned on the coarse box: k = {k_spring:.6g} N")
+    laws = {"area": (C_area, lambda m: cfg.E * m.edge_measure),
+            "k": (bulk_tensor(probe_mesh, k_spring * probe_mesh.rest_lengths, h), lambda m: k_spring * m.rest_lengths)}
+    ratio = max(max_speed(C, cfg.rho) / christoffel(C, [1, 0, 0], cfg.rho)[0][-1] for C, _ in laws.values())
+    half = 2 * h + RUN_PERIODS * 2 * BOX_LENGTH * ratio  # lateral half-width: no reflection reaches the centre
+    ny = square_domain_cells(half, h) + 1
+    mesh = M.tet_box(nc + 1, ny, ny, size=(BOX_LENGTH, (ny - 1) * h, (ny - 1) * h))
+    X = mesh.vertices
+    mass = M.lumped_masses(mesh, cfg.rho)
+    yc = 0.5 * (ny - 1) * h
+    band = (np.abs(X[:, 1] - yc) <= 1.01 * h) & (np.abs(X[:, 2] - yc) <= 1.01 * h)
+    draw = solid_drawer(mesh, h, k, springs=level == 0) if level < 2 else None
+    ctx.progress(f"h = {h:.4g} m: {mesh.n_vertices} vertices, {len(mesh.edges)} springs")
+    for law, (C, coef) in laws.items():
+        speeds_th, pol = christoffel(C, [1, 0, 0], cfg.rho)
+        model = Model.from_springs(X, mesh.edges, c=coef(mesh), mass=mass)
+        c = standing_wave(ctx, f"{law}_h{nc}", model, mass, [1, 0, 0], pol[:, -1], k, (0.0, 0.0, 0.0),
+                          band, speeds_th[-1], draw, fits)
+        speeds[law].append(c)
+        ctx.progress(f"  {law:4s}: measured {c:.5f} m/s, Cauchy-Born {speeds_th[-1]:.5f} m/s")
+    return k_spring
+
+
+# ---------------------------------------------------------------------------- stage 2
+
+def eq_sheet(cfg, half_cells: float, spacing: float = 1.0) -> M.Mesh:
+    """An equilateral lattice about 2*half_cells spacings on a side."""
+    nx = square_domain_cells(half_cells * spacing, spacing) + 1
+    ny = square_domain_cells(half_cells * spacing, spacing * math.sqrt(3) / 2) + 1
+    return M.equilateral_lattice(nx, ny, spacing)
+
+
+def stage_equilateral(ctx):
+    cfg = ctx.cfg
+    c0 = math.sqrt(cfg.E / cfg.rho)
+    cP, cS = math.sqrt(3 / 8) * c0, math.sqrt(1 / 8) * c0
+    fits = []
+    out = _equilateral_speeds(ctx, cP, cS, fits)
+    ratio = 0.5 * (out["P", "x"] / out["S", "x"] + out["P", "y"] / out["S", "y"])
+    return [
+        Experiment("P wave along x (an edge direction) = sqrt(3/8) c0", cP, out["P", "x"], 2e-2, "rel", "m/s",
+                   id="p-wave-x"),
+        Experiment("P wave along y (across the edges) = sqrt(3/8) c0", cP, out["P", "y"], 2e-2, "rel", "m/s",
+                   id="p-wave-y"),
+        Experiment("S wave along x = sqrt(mu/rho) = sqrt(1/8) c0", cS, out["S", "x"], 2e-2, "rel", "m/s",
+                   id="s-wave-x"),
+        Experiment("S wave along y = sqrt(1/8) c0", cS, out["S", "y"], 2e-2, "rel", "m/s", id="s-wave-y"),
+        Experiment("c_P/c_S = sqrt(3), i.e. lambda = mu (Cauchy relation)", math.sqrt(3), ratio, 1e-2,
+                   id="p-over-s-sqrt3"),
+        Experiment("isotropy: P speed along y / along x = 1", 1.0, out["P", "y"] / out["P", "x"], 1e-2,
+                   id="p-wave-isotropy"),
+    ] + be_experiments(ctx, "equilateral", fits)
+
+
+def _equilateral_speeds(ctx, cP: float, cS: float, fits: list) -> dict:
+    """{(wave, axis): measured speed} for the P and S standing waves along x and y, read in a disc
+    at the centre of a sheet large enough that nothing from its free edges arrives there."""
+    cfg = ctx.cfg
+    lam = float(cfg.wavelength)  # spacing 1 m
+    k = 2 * math.pi / lam
+    r = 0.15 * lam
+    half = r + RUN_PERIODS * lam * (cP / cS) * 1.05 + 2.0
+    m2 = eq_sheet(cfg, half)
+    m3 = M.embed_3d(m2)
+    model, c, mass = area_model(m3, cfg.E, cfg.rho)
+    C = cauchy_born_tensor(m2.vertices, m2.edges, c, m2.total_measure)
+    ctx.progress(f"sheet: {m2.n_vertices} vertices, {len(m2.edges)} springs; Cauchy-Born C_xxxx = "
+                 f"{C[0, 0, 0, 0]:.5f}, C_xxyy = {C[0, 0, 1, 1]:.5f}, C_xyxy = {C[0, 1, 0, 1]:.5f} (3E/8, E/8, E/8)")
+    V = m2.vertices
+    ctr = 0.5 * (V.min(axis=0) + V.max(axis=0))
+    region = np.linalg.norm(V - ctr, axis=1) <= r
+    draw = sheet_drawer(m3, 1.0, k)
+    out = {}
+    for label, d in (("x", [1.0, 0.0]), ("y", [0.0, 1.0])):
+        n = _unit(d)
+        for wave, p, guess in (("P", n, cP), ("S", np.array([-n[1], n[0]]), cS)):
+            out[wave, label] = standing_wave(ctx, f"{wave}_along_{label}", model, mass, n, p, k, ctr, region,
+                                             guess, draw if label == "x" else None, fits)
+            ctx.progress(f"{wave} along {label}: {out[wave, label]:.5f} m/s")
+    return out
+
+
+# ---------------------------------------------------------------------------- stage 3
+
+DIRECTIONS = {"x": ([1.0, 0.0], "x"), "y": ([0.0, 1.0], "y"), "diagonal (1,1)": ([1.0, 1.0], "diagonal-plus"),
+              "diagonal (1,-1)": ([1.0, -1.0], "diagonal-minus")}  # label: (direction, id slug)
+
+
+def stage_patterns(ctx):
+    cfg = ctx.cfg
+    lam = float(cfg.wavelength)
+    k = 2 * math.pi / lam
+    r = 0.15 * lam  # the disc the amplitude is read in
+    half = r + RUN_PERIODS * lam * math.sqrt(3) * 1.05 + 2.0  # the slowest wave is 1/sqrt(3) of the fastest
+    n = square_domain_cells(half, 1.0) + 1
+    exps, measured, fits = [], {}, []
+    for pattern in ("one-way", "alternating", "crossed"):
+        exps += _pattern_speeds(ctx, pattern, n, k, r, measured, fits)
+    v1, t1 = measured["one-way", "diagonal (1,1)"]
+    v2, t2 = measured["one-way", "diagonal (1,-1)"]
+    exps.append(Experiment("one-way grid is anisotropic: speed along / across its diagonals", t1 / t2, v1 / v2, 2e-2,
+                           id="one-way-anisotropic"))
+    jittered = []
+    exps += _jitter_experiments(ctx, n, k, lam, jittered)
+    return exps + be_experiments(ctx, "patterns", fits, jittered)
+
+
+def _pattern_speeds(ctx, pattern: str, n: int, k: float, r: float, measured: dict, fits: list):
+    """The P wave along x, y and both diagonals of a right-triangle grid of ``pattern`` against
+    the Cauchy-Born prediction, read in a disc of radius ``r`` (the measured and predicted speeds
+    also go to ``measured``)."""
+    cfg = ctx.cfg
+    c0 = math.sqrt(cfg.E / cfg.rho)
+    m2 = M.right_triangle_grid(n, n, n - 1.0, n - 1.0, pattern)
+    m3 = M.embed_3d(m2)
+    model, c, mass = area_model(m3, cfg.E, cfg.rho)
+    C = cauchy_born_tensor(m2.vertices, m2.edges, c, m2.total_measure)
+    ctr = np.full(2, 0.5 * (n - 1))
+    region = np.linalg.norm(m2.vertices - ctr, axis=1) <= r
+    exps = []
+    for label, (d, slug) in DIRECTIONS.items():
+        speeds, pol = christoffel(C, d, cfg.rho)
+        draw = sheet_drawer(m3, 1.0, k) if label == "x" else None
+        v = standing_wave(ctx, f"{pattern}_{label}", model, mass, _unit(d), pol[:, -1], k, ctr, region,
+                          speeds[-1], draw, fits)
+        measured[pattern, label] = (v, speeds[-1])
+        ctx.progress(f"{pattern}, P along {label}: measured {v:.5f}, Cauchy-Born {speeds[-1]:.5f} m/s")
+        exps.append(Experiment(f"{pattern} grid: P wave along {label} = Cauchy-Born ({speeds[-1] / c0:.4f} c0)",
+                               speeds[-1], v, 2e-2, "rel", "m/s", id=f"{pattern}-p-wave-{slug}"))
+    return exps
+
+
+def _jitter_experiments(ctx, n, k, lam, fits):
+    """Jittered one-way grids: strong jitter (cfg.jitter, several seeds) against the relaxed
+    network's prediction, mild jitter against the affine Cauchy-Born sum; the affine sum is an
+    upper bound, and the speeds scatter little between meshes."""
+    cfg = ctx.cfg
+    base = M.right_triangle_grid(n, n, n - 1.0, n - 1.0, "one-way")
+    ctr = np.full(2, 0.5 * (n - 1))
+    r = 0.25 * lam  # a larger disc averages over more of the disorder
+    exps, speeds, bound = [], [], []
+    cases = [(cfg.jitter, seed) for seed in range(cfg.jitter_seeds)] + [(SMALL_JITTER, 100)]
+    for amp, seed in cases:
+        m2 = M.jitter(base, amp, seed)
+        m3 = M.embed_3d(m2)
+        model, c, mass = area_model(m3, cfg.E, cfg.rho)
+        C_affine = cauchy_born_tensor(m2.vertices, m2.edges, c, m2.total_measure)
+        region = np.linalg.norm(m2.vertices - ctr, axis=1) <= r
+        window = np.linalg.norm(m2.vertices[m2.triangles].mean(axis=1) - ctr, axis=1) <= r
+        blocks = model.springs.hessian_blocks_numpy(model.X_nd, psd=False)
+        C_relaxed, _ = relaxed_stiffness_2d(m2, blocks, c, window)
+        rho_eff = mass.sum() / m2.total_measure
+        for label, d in (("x", [1.0, 0.0]), ("y", [0.0, 1.0])):
+            s_aff, _ = christoffel(C_affine, d, rho_eff)
+            s_rel, pol = christoffel(C_relaxed, d, rho_eff)
+            first = amp == cfg.jitter and seed == 0 and label == "x"
+            v = standing_wave(ctx, f"jitter{amp:g}_seed{seed}_{label}", model, mass, d, pol[:, -1], k, ctr,
+                              region, s_rel[-1], sheet_drawer(m3, 1.0, k) if first else None, fits)
+            ctx.progress(f"jitter {amp:g} seed {seed}, P along {label}: measured {v:.5f}, relaxed {s_rel[-1]:.5f}, "
+                         f"affine Cauchy-Born {s_aff[-1]:.5f} m/s ({v / s_aff[-1] - 1:+.2%})")
+            if amp == cfg.jitter:
+                speeds.append(v)
+                bound.append(v / s_aff[-1])
+                exps.append(Experiment(f"jitter {amp:g} (seed {seed}): P along {label} = relaxed-network prediction",
+                                       s_rel[-1], v, 2e-2, "rel", "m/s", id=f"jitter-seed{seed}-p-wave-{label}"))
+            else:
+                exps.append(Experiment(f"mild jitter {amp:g}: P along {label} = Cauchy-Born sum over its springs",
+                                       s_aff[-1], v, 2e-2, "rel", "m/s", id=f"mild-jitter-p-wave-{label}"))
+    speeds = np.asarray(speeds)
+    exps += [
+        Experiment(f"jitter {cfg.jitter:g}: the affine Cauchy-Born sum is an upper bound (max measured/sum)",
+                   1.0, max(bound), 0, "<=", id="jitter-affine-sum-upper-bound"),
+        Experiment(f"jitter {cfg.jitter:g}: spread of the x and y speeds over {cfg.jitter_seeds} meshes, (max-min)/mean",
+                   0.02, float(np.ptp(speeds) / speeds.mean()), 0, "<=", id="jitter-speed-spread"),
+    ]
+    ctx.progress(f"jitter {cfg.jitter:g}: speeds {np.round(speeds, 5).tolist()}, mean {speeds.mean():.5f}, "
+                 f"std {speeds.std():.2g}; affine sum over-predicts by {1 / np.mean(bound) - 1:.2%} on average")
+    return exps
+
+
+# ---------------------------------------------------------------------------- stage 4
+
+def stage_tet_box(ctx):
+    cfg = ctx.cfg
+    probe_mesh = M.tet_box(6, 6, 6, size=5.0)
+    C_unit = bulk_tensor(probe_mesh, cfg.E * probe_mesh.edge_measure, 1.0)  # the same for every h
+    fits = []
+    out = _tet_box_speeds(ctx, C_unit, fits)
+    (a1, t1), (a2, _), (b1, tb), (x1, tx) = (out["(1,1,1)", 1], out["(1,1,1)", 2], out["(1,1,-1)", 1], out["x", 1])
+    E_x, nu_x = young_poisson(C_unit, 0)
+    ctx.progress(f"tet box Cauchy-Born: Young's modulus along x {E_x:.4f} E, Poisson ratio {nu_x:.4f}")
+    return [
+        Experiment("tet box, h: P along (1,1,1) = Cauchy-Born sqrt(10/27) c0", t1, a1, 2e-2, "rel", "m/s",
+                   id="box-p-wave-111"),
+        Experiment("tet box, h/2: P along (1,1,1) = Cauchy-Born", t1, a2, 2e-2, "rel", "m/s",
+                   id="box-p-wave-111-refined"),
+        Experiment("refinement leaves the (1,1,1) speed unchanged: c(h/2)/c(h)", 1.0, a2 / a1, 1e-2,
+                   id="box-refinement-keeps-speed"),
+        Experiment("tet box: quasi-P along (1,1,-1) = Cauchy-Born", tb, b1, 2e-2, "rel", "m/s",
+                   id="box-p-wave-11minus1"),
+        Experiment("tet box: quasi-P along x = Cauchy-Born", tx, x1, 2e-2, "rel", "m/s", id="box-p-wave-x"),
+        Experiment("tet box is anisotropic: speed (1,1,1) / (1,1,-1)", t1 / tb, a1 / b1, 2e-2, id="box-anisotropic"),
+    ] + be_experiments(ctx, "tet-box", fits)
+
+
+def _tet_box_speeds(ctx, C_unit: np.ndarray, fits: list) -> dict:
+    """{(direction label, refinement): (measured, Cauchy-Born speed)} of standing P waves in a
+    cube of tets, read in a ball at its centre: along (1,1,1), (1,1,-1) and x on the coarse box,
+    along (1,1,1) again on the box refined once."""
+    cfg = ctx.cfg
+    h0 = BOX_LENGTH / cfg.box_cells
+    lam = cfg.box_wavelength * h0
+    k = 2 * math.pi / lam
+    r = 0.15 * lam
+    cmax = max_speed(C_unit, cfg.rho)
+    runs = [("(1,1,1)", [1, 1, 1], 1), ("(1,1,1)", [1, 1, 1], 2), ("(1,1,-1)", [1, 1, -1], 1), ("x", [1, 0, 0], 1)]
+    out = {}
+    for refine in (1, 2):
+        h = h0 / refine
+        todo = [(label, d) for label, d, rf in runs if rf == refine]
+        ratio = cmax / min(christoffel(C_unit, d, cfg.rho)[0][-1] for _, d in todo)
+        half = r + RUN_PERIODS * lam * ratio * 1.05 + h
+        cells = square_domain_cells(half, h)
+        mesh = M.tet_box(cells + 1, cells + 1, cells + 1, size=cells * h)
+        model, c, mass = area_model(mesh, cfg.E, cfg.rho)
+        ctr = np.full(3, 0.5 * cells * h)
+        region = np.linalg.norm(mesh.vertices - ctr, axis=1) <= r
+        ctx.progress(f"cube h = {h:.4g} m: {mesh.n_vertices} vertices, {len(mesh.edges)} springs")
+        draw = solid_drawer(mesh, h, k) if refine == 1 else None
+        for label, d in todo:
+            speeds, pol = christoffel(C_unit, d, cfg.rho)
+            v = standing_wave(ctx, f"P_{label}_h{refine}", model, mass, _unit(d), pol[:, -1], k, ctr, region,
+                              speeds[-1], draw if label == "(1,1,1)" else None, fits)
+            out[label, refine] = (v, speeds[-1])
+            ctx.progress(f"  P along {label}: measured {v:.5f}, Cauchy-Born {speeds[-1]:.5f} m/s")
+    return out
+
+
+# ---------------------------------------------------------------------------- stage 5
+
+def stage_stretch(ctx):
+    cfg = ctx.cfg
+    n = cfg.strip_cells
+    w = max(4, n // 4)
+    eq = M.equilateral_lattice(n + 1, int(round(w / (math.sqrt(3) / 2))) + 1, 1.0)
+    nu_eq, E_eq, E_nominal = _pull(ctx, "equilateral_strip", eq, 0.5 + 1e-9)
+    grid = M.right_triangle_grid(n + 1, w + 1, float(n), float(w), "alternating")
+    C = cauchy_born_tensor(grid.vertices, grid.edges, cfg.E * grid.edge_measure, grid.total_measure)
+    E_alt, nu_alt_th = young_poisson(C, 0)
+    nu_alt, E_alt_m, _ = _pull(ctx, "alternating_strip", grid, 1e-9)
+    return [
+        Experiment("equilateral sheet: Poisson's ratio = 1/3", 1 / 3, nu_eq, 2e-2, id="equilateral-poisson-ratio"),
+        Experiment("equilateral sheet: Young's modulus E_eff = E/3", cfg.E / 3, E_eq, 2e-2, "rel", "N/m",
+                   id="equilateral-young-modulus"),
+        Experiment("clamped ends stiffen the strip: F/(w * nominal strain) exceeds E/3", cfg.E / 3, E_nominal, 0,
+                   ">=", "N/m", id="clamped-ends-stiffen"),
+        Experiment("alternating grid, pulled along x: Poisson's ratio (Cauchy-Born, 1/5)", nu_alt_th, nu_alt, 2e-2,
+                   id="alternating-poisson-ratio"),
+        Experiment("alternating grid, pulled along x: Young's modulus (Cauchy-Born, 2E/5)", E_alt, E_alt_m, 2e-2,
+                   "rel", "N/m", id="alternating-young-modulus"),
+    ]
+
+
+def _pull(ctx, name: str, m2: M.Mesh, end_width: float):
+    """Clamp the ends (vertices within end_width of x_min/x_max), stretch by cfg.strain,
+    solve the statics; returns (nu, E_eff in the middle, F/(w * nominal strain))."""
+    from engine.statics import solve_static
+
+    cfg = ctx.cfg
+    m3 = M.embed_3d(m2)
+    X = m3.vertices
+    x0, x1 = X[:, 0].min(), X[:, 0].max()
+    left, right = X[:, 0] <= x0 + end_width, X[:, 0] >= x1 - end_width
+    model, c, mass = area_model(m3, cfg.E, cfg.rho, pinned=np.flatnonzero(left | right))
+    start = X.copy()
+    start[:, 0] = x0 + (X[:, 0] - x0) * (1 + cfg.strain)
+    res = solve_static(model, x0=start, tol=1e-8, max_iter=60)
+    u = res.x - X
+    length, width = x1 - x0, X[:, 1].max() - X[:, 1].min()
+    exx, eyy = _middle_strains(X, u, x0, x1)
+    F = res.reactions[right, 0].sum()
+    ctx.progress(f"{name}: {res.iterations} Newton steps, residual {res.residual:.2g}; eps_xx {exx:.6g} in the middle "
+                 f"(nominal {cfg.strain:g}), eps_yy {eyy:.6g}, pin force {F:.6g} N")
+    if ctx.rec.enabled:
+        _draw_strip(ctx.rec, name, m3, res.x, u, cfg.strain, length)
+    return -eyy / exx, F / (width * exx), F / (width * cfg.strain)
+
+
+def _middle_strains(X, u, x0, x1):
+    """(eps_xx, eps_yy) fitted from the displacements of the middle fifth of the strip, where it
+    is in uniaxial stress."""
+    mid = np.abs(X[:, 0] - 0.5 * (x0 + x1)) <= 0.1 * (x1 - x0)
+    A = np.stack([np.ones(mid.sum()), X[mid, 0], X[mid, 1]], axis=1)
+    exx = np.linalg.lstsq(A, u[mid, 0], rcond=None)[0][1]
+    eyy = np.linalg.lstsq(A, u[mid, 1], rcond=None)[0][2]
+    return exx, eyy
+
+
+def _draw_strip(rec, name, m3, x, u, strain, length):
+    """The stretched strip coloured by strain, its end displacement drawn as 2 spacings."""
+    X = m3.vertices
+    rec.run(name)
+    rec.set_time(0, 0.0)
+    s = edge_strain(x, m3.edges, m3.rest_lengths)
+    xd = X + (2.0 / (strain * length)) * u
+    rec.mesh(xd, m3.triangles, vertex_colors=_colors(vertex_strain(len(X), m3.edges, s), 1.5 * strain))
+    rec.springs(xd, m3.edges, s, scale=1.5 * strain)
