@@ -11,7 +11,7 @@ The configuration (threads, precision) is the runtime's: ``ELASTIC_THREADS``, ``
 (engine/runtime.py); one process per configuration.
 
 Scenes: the cloth is :func:`engine.scenes.cloth` (the lessons' scene) with E = 1e3 N/m,
-rho = 0.1 kg/m^2, B = 1e-4 N m; the rod is :class:`engine.rod.Rod` with E = 1 N, rho = 1 kg/m,
+rho = 0.1 kg/m^2, B = 1e-4 N m; the rod is :class:`engine.scenes.Rod` with E = 1 N, rho = 1 kg/m,
 length 1 m, node 0 pinned.  Every step starts from the same deterministic, moving, deformed
 state (:func:`cloth_start_state`), so the engine and the baselines get the same input and the
 implicit solvers see stretched springs and bent hinges, not the trivial rest state.
@@ -122,24 +122,13 @@ def cloth_start_state(c) -> tuple:
 def rod_scene(nodes: int):
     """The rod of engine.rod (E = 1 N, rho = 1 kg/m, 1 m, node 0 pinned) and its start state
     (a Gaussian displacement pulse 10 node spacings wide); cached."""
-    from engine.rod import Rod
+    from engine.scenes import Rod
     if nodes not in _rods:
         rod = Rod.uniform(nodes, 1.0, E=ROD_E, rho=ROD_RHO, pinned=[0])
         h = 1.0 / (nodes - 1)
         u0 = 1e-3 * np.exp(-0.5 * ((rod.p - 0.5) / (10 * h)) ** 2)
         _rods[nodes] = (rod, u0)
     return _rods[nodes]
-
-
-def rod_as_model(rod):
-    """The same rod as an engine Model (a 3D spring chain along x, c = E h, lumped masses), for
-    the general backward-Euler solvers (PCG, Cholesky)."""
-    from engine.model import Model
-    X = np.zeros((rod.n, 3))
-    X[:, 0] = rod.p
-    i = np.arange(rod.n - 1)
-    edges = np.stack([i, i + 1], axis=1)
-    return Model.from_springs(X, edges, k=rod.E, mass=rod.mass, pinned=np.flatnonzero(rod.pinned))
 
 
 def backward_euler_for(model, state_reset, dt, solver, fp):

@@ -44,7 +44,7 @@ def main(argv=None) -> int:
 
     import taichi as ti
     from engine.integrators import BackwardEuler, get
-    from engine.rod import Rod
+    from engine.scenes import Rod
     from engine.scenes import cloth
     out["import_s"] = time.perf_counter() - t
     out["interpreter_to_import_s"] = t - T0

@@ -52,7 +52,7 @@ def test_engine_rod_steps(benchmark, nodes, method):
 @pytest.mark.parametrize("nodes", SIZES)
 def test_engine_rod_model_backward_euler(benchmark, nodes, solver):
     rod, u0 = config.rod_scene(nodes)
-    model = config.rod_as_model(rod)
+    model = rod.model
     x0 = np.asarray(model.X, dtype=np.float64).copy()
     x0[:, 0] += u0
     st = model.make_state(x0)

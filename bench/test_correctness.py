@@ -176,8 +176,8 @@ def test_numpy_rod_steps_equal_engine_rod(method):
     base = NumpyRod(rod)
     x, v = rod.p + u0, np.zeros(rod.n)
     (base.symplectic_euler if method == "symplectic-euler" else base.backward_euler)(x, v, dt, 30)
-    assert np.max(np.abs(st.x.to_numpy() - x)) <= 1e-10 * np.max(np.abs(u0))
-    assert np.max(np.abs(st.v.to_numpy() - v)) <= 1e-9 * max(np.max(np.abs(v)), 1e-30)
+    assert np.max(np.abs(st.positions() - x)) <= 1e-10 * np.max(np.abs(u0))
+    assert np.max(np.abs(st.velocity() - v)) <= 1e-9 * max(np.max(np.abs(v)), 1e-30)
 
 
 @pytest.mark.parametrize("solver", ["pcg", "cholesky"])
@@ -186,14 +186,14 @@ def test_rod_model_backward_euler_equals_rod_thomas(solver):
     dt = 10 * float(rod.h[0])
     st = rod.new_state(u0)
     rod.run(st, dt, 3, "backward-euler")
-    model = config.rod_as_model(rod)
+    model = rod.model
     x0 = np.asarray(model.X, dtype=np.float64).copy()
     x0[:, 0] += u0
     ms = model.make_state(x0)
     BackwardEuler(solver=solver, tol=1e-12, newton_iterations=1, line_search=False, max_iter=100000).step(
         model, ms, dt, 3)
     got = ms.numpy()
-    assert np.max(np.abs(got.x[:, 0] - st.x.to_numpy())) <= 1e-8 * np.max(np.abs(u0))
+    assert np.max(np.abs(got.x[:, 0] - st.positions())) <= 1e-8 * np.max(np.abs(u0))
     assert np.max(np.abs(got.x[:, 1:])) == 0.0
 
 

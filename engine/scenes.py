@@ -5,15 +5,34 @@ default) hanging in the x-z plane, with area-scaled springs (c_e = E A_e, W = 1/
 dihedral bending (engine/energies/bending.py) and gravity, pinned at its two top corners.
 Units: E is the 2D stretching modulus (N/m: Young's modulus times thickness), rho the areal
 density (kg/m^2), B the bending modulus (N m).
+
+``Rod``: the 1D elastic rod of the notes' first slides as a chain Model. Nodes at rest positions
+p_0 < ... < p_{n-1} on the x axis (not necessarily evenly spaced) move along the axis; segment j
+joins nodes j and j+1, has rest length h_j = p_{j+1} - p_j, Young's modulus E_j (the notes'
+E_{j+1/2}; N, force per unit strain in 1D) and linear density rho_j (kg/m). Its springs have
+c_j = E_j h_j, so the spring energy (S1) is the notes' "1D continuum potential"
+
+    W = sum_j 1/2 E_j ((x_{j+1} - x_j)/h_j - 1)^2 h_j                                        (R1)
+
+and the spring force (S2) along the axis is f_i = E_i s_i - E_{i-1} s_{i-1} (s_j the strain), which
+divided by the lumped mass m_i = (rho_{i-1} h_{i-1} + rho_i h_i)/2 is the finite-difference stencil
+of (1/rho) d/dp (E (dx/dp - 1)) (notes, "From last class"). A rod is small, so a run is one
+many-steps kernel launch (engine.integrators.kernels.many_steps), backward Euler included (one
+block-tridiagonal solve per step, engine.solvers.thomas). Theory of the schemes on the rod:
+engine.theory.schemes.
 """
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.linalg as sla
 
 from engine import mesh as meshes
 from engine.constants import G
 from engine.energies.bending import BendingEnergy
-from engine.model import Model
+from engine.errors import ParameterError
+from engine.fields import scratch_vec3, zero_vec3
+from engine.model import Model, State
+from engine.stability import gershgorin_lambda_max
 
 
 @dataclass
@@ -46,3 +65,170 @@ def cloth(n: int, size: float = 1.0, E: float = 1e3, rho: float = 0.1, B: float 
     if B > 0:
         bending = model.add_energy(BendingEnergy.from_mesh(m3, B, variant))
     return Cloth(m3, model, model.springs, bending)
+
+
+
+class RodState(State):
+    """A state of a :class:`Rod`: the Model's positions and velocities, read along the axis."""
+
+    def positions(self) -> np.ndarray:
+        """x_i along the axis (m)."""
+        return self.x.to_numpy()[:, 0].astype(np.float64)
+
+    def displacement(self, rod: "Rod") -> np.ndarray:
+        """u_i = x_i - p_i (m)."""
+        return self.positions() - rod.p
+
+    def velocity(self) -> np.ndarray:
+        """dx_i/dt along the axis (m/s)."""
+        return self.v.to_numpy()[:, 0].astype(np.float64)
+
+
+class Rod:
+    """The rod scene: rest node positions, segment E and rho, pins, and its chain ``model``.
+
+    Parameters (SI): p: node rest positions (m), strictly increasing, at least 3 nodes;
+    E: Young's modulus per segment (N) or a scalar; rho: linear density per segment
+    (kg/m) or a scalar; pinned: node indices held fixed.
+    """
+
+    def __init__(self, p, E=1.0, rho=1.0, pinned=()):
+        p = np.asarray(p, dtype=np.float64)
+        if p.ndim != 1 or p.size < 3:
+            raise ParameterError(f"nodes must be >= 3 (got {p.size})")
+        if not np.all(np.isfinite(p)):
+            raise ParameterError("node positions p must be finite")
+        h = np.diff(p)
+        if np.any(h <= 0):
+            j = int(np.argmax(h <= 0))
+            raise ParameterError(f"node positions must increase: segment {j} has length {h[j]:.6g} (must be > 0)")
+        n = p.size
+        E = np.broadcast_to(np.asarray(E, dtype=np.float64), (n - 1,)).copy()
+        rho = np.broadcast_to(np.asarray(rho, dtype=np.float64), (n - 1,)).copy()
+        for name, arr in (("E", E), ("rho", rho)):
+            bad = ~(np.isfinite(arr) & (arr > 0))
+            if np.any(bad):
+                j = int(np.argmax(bad))
+                raise ParameterError(f"{name} must be > 0 and finite (got {arr[j]!r} on segment {j})")
+        pinned = np.asarray(pinned, dtype=np.int64).reshape(-1)
+        if pinned.size and (pinned.min() < 0 or pinned.max() >= n):
+            raise ParameterError(f"pinned node indices must be in 0..{n - 1} (got {pinned.tolist()})")
+        self.p, self.h, self.E, self.rho = p, h, E, rho
+        self.n = n
+        seg_mass = rho * h
+        self.mass = np.zeros(n)
+        self.mass[:-1] += 0.5 * seg_mass  # lumped: half of each adjacent segment
+        self.mass[1:] += 0.5 * seg_mass
+        self.pinned = np.zeros(n, dtype=bool)
+        self.pinned[pinned] = True
+        X = np.zeros((n, 3))
+        X[:, 0] = p
+        edges = np.stack([np.arange(n - 1), np.arange(1, n)], axis=1)
+        self.model = Model.from_springs(X, edges, c=E * h, L=h, mass=self.mass, pinned=self.pinned)
+        self._modes = None
+
+    @classmethod
+    def uniform(cls, nodes: int, length: float = 1.0, E=1.0, rho=1.0, pinned=()):
+        if int(nodes) < 3:
+            raise ParameterError(f"nodes must be >= 3 (got {nodes})")
+        return cls(np.linspace(0.0, length, int(nodes)), E, rho, pinned)
+
+    # --- physics quantities -------------------------------------------------------
+    def wave_speed(self) -> np.ndarray:
+        """c = sqrt(E/rho) per segment (m/s)."""
+        return np.sqrt(self.E / self.rho)
+
+    def impedance(self) -> np.ndarray:
+        """Z = sqrt(E rho) per segment (kg/s)."""
+        return np.sqrt(self.E * self.rho)
+
+    def omega_max_bound(self) -> float:
+        """Upper bound on the highest angular frequency: the Gershgorin bound (engine.stability (C1))
+        of the chain model; row i sums 2 (k_{i-1} + k_i), k_j = E_j/h_j, exact for a uniform free
+        rod: w_max = 2c/h."""
+        return float(np.sqrt(gershgorin_lambda_max(self.model)))
+
+    def stable_dt(self) -> float:
+        """Largest dt with w_max dt <= 2 (symplectic Euler's and velocity Verlet's limit); conservative."""
+        return 2.0 / self.omega_max_bound()
+
+    def stiffness_matrix(self) -> np.ndarray:
+        """Dense K (n x n) for reference checks in tests and lessons."""
+        k = self.E / self.h
+        K = np.zeros((self.n, self.n))
+        idx = np.arange(self.n - 1)
+        K[idx, idx] += k
+        K[idx + 1, idx + 1] += k
+        K[idx, idx + 1] -= k
+        K[idx + 1, idx] -= k
+        return K
+
+    def normal_modes(self):
+        """(w2, Phi, free): the eigenpairs K Phi = M Phi diag(w2) of the free nodes (numpy, for
+        reference checks), Phi M-orthonormal (Phi^T M Phi = I), w2 ascending (rigid modes ~ 0,
+        clipped at 0); ``free`` the indices of the unpinned nodes. Computed once per rod.
+
+        K restricted to the free nodes is tridiagonal, so S = M^-1/2 K M^-1/2 is a symmetric
+        tridiagonal matrix and LAPACK's tridiagonal eigensolver gives S = Y diag(w2) Y^T;
+        Phi = M^-1/2 Y."""
+        if getattr(self, "_modes", None) is None:
+            free = np.flatnonzero(~self.pinned)
+            k = self.E / self.h
+            diag = np.zeros(self.n)
+            diag[:-1] += k
+            diag[1:] += k
+            off = np.where(np.diff(free) == 1, -k[free[:-1]], 0.0)  # coupling of consecutive free nodes
+            s = 1.0 / np.sqrt(self.mass[free])
+            w2, Y = sla.eigh_tridiagonal(diag[free] * s * s, off * s[:-1] * s[1:])
+            self._modes = (np.clip(w2, 0.0, None), s[:, None] * Y, free)
+        return self._modes
+
+    # --- the chain model ------------------------------------------------------
+    def _vec3(self, x):
+        """Positions as a vec3 ndarray: a state's ``x`` as it is, numpy positions along the axis copied."""
+        if isinstance(x, np.ndarray):
+            X = np.zeros((self.n, 3))
+            X[:, 0] = x
+            a = scratch_vec3(self.model, "rod_x")
+            a.from_numpy(X.astype(a.to_numpy().dtype))
+            return a
+        return x
+
+    def energy(self, x) -> float:
+        """W(x) of (R1); x: positions along the axis (numpy) or a state's ``x``."""
+        return self.model.elastic_energy(self._vec3(x))
+
+    def forces(self, x) -> np.ndarray:
+        """-dW/dx_i along the axis at every node (pinned ones included)."""
+        f = scratch_vec3(self.model, "rod_f")
+        zero_vec3(f)
+        self.model.add_elastic_forces(self._vec3(x), f)
+        return f.to_numpy()[:, 0].astype(np.float64)
+
+    def new_state(self, u0=None, v0=None) -> RodState:
+        """A state with displacement u0 (x = p + u0) and velocity v0 (zero by default)."""
+        X = np.zeros((self.n, 3))
+        X[:, 0] = self.p + (0 if u0 is None else np.asarray(u0, dtype=np.float64))
+        V = np.zeros((self.n, 3))
+        if v0 is not None:
+            V[:, 0] = np.asarray(v0, dtype=np.float64)
+        st = self.model.make_state(X, V)
+        return RodState(st.x, st.v, st.t)
+
+    def kinetic(self, state: RodState) -> float:
+        v = state.velocity()
+        return float(0.5 * np.sum(self.mass * v * v))
+
+    def run(self, state: RodState, dt: float, n_steps: int, method: str = "symplectic-euler",
+            energy_bound: float | None = None, step_offset: int = 0):
+        """Advance ``n_steps`` steps of ``method`` in one launch; returns (kinetic, potential) arrays, one
+        entry per step. A step whose total energy is not finite or exceeds ``energy_bound`` raises the
+        monitor's BlowUpError naming that step (``step_offset`` + index), with the energies so far."""
+        from engine.integrators import METHODS
+        from engine.integrators.explicit import run_many_steps
+
+        if not (np.isfinite(dt) and dt > 0):
+            raise ParameterError(f"dt must be > 0 and finite (got {dt!r})")
+        if method not in METHODS:
+            raise ParameterError(f"integrator must be one of {', '.join(METHODS)} (got {method!r})")
+        return run_many_steps(self.model, state, float(dt), int(n_steps), method, energy_bound, step_offset)

@@ -89,10 +89,10 @@ def observation_steps(n_steps: int, every: int) -> list[int]:
 
 
 def modal_tracks(rod, u0, v0, dt: float, method: str, steps: list[int], regions=()):
-    """What ``method`` itself predicts for a linear 1D rod (:class:`engine.rod.ModalReference`:
+    """What ``method`` itself predicts for a linear 1D rod (:class:`engine.theory.schemes.ModalReference`:
     each normal mode advanced with the scheme's exact 2x2 step matrix), measured like a run:
     the peaks of ``regions`` tracked at ``steps``. Returns (tracks, displacement at the last step)."""
-    from engine.rod import ModalReference
+    from engine.theory.schemes import ModalReference
 
     U = ModalReference(rod, u0, v0, dt, method).displacements(steps)
     tracks, observe = track_peaks(rod.p, regions)

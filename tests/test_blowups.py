@@ -27,7 +27,7 @@ from engine.integrators import make_integrator, stable_dt_estimate
 from engine.integrators.explicit import run_many_steps as run_fused
 from engine.model import Model
 from engine.recorder import NullRecorder, Recorder, summarize
-from engine.rod import Rod
+from engine.scenes import Rod
 from lessons import rod_waves
 from lessons._framework import Lesson, StageContext
 from lessons._scene import run_chunked, simulate
@@ -248,7 +248,7 @@ def test_backward_euler_failure_message_gives_the_energy():
 
 
 # --------------------------------------------------------------------------------------------
-# the rod's one-launch runner (engine/rod.py via lessons/rod_waves.simulate)
+# the rod's one-launch runner (engine.scenes.Rod via lessons/rod_waves.simulate)
 # --------------------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("method,cfl", [("symplectic-euler", 1.05), ("forward-euler", 0.5)])

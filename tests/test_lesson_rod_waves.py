@@ -135,6 +135,6 @@ def test_velocity_verlet_scene_runs_meet_the_undamped_theory(stage):
 def test_forward_euler_scene_run_is_stopped_at_the_step():
     from engine.errors import BlowUpError
     used = []
-    with pytest.raises(BlowUpError, match="forward Euler adds energy at every dt") as info:
+    with pytest.raises(BlowUpError, match="forward Euler adds energy to every undamped oscillation at any dt") as info:
         run_stage(LESSON, 2, stepping=dict(integrator="forward-euler"), used=used)
     assert 0 < info.value.step < 2000

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from engine.errors import BlowUpError, ParameterError
-from engine.rod import Rod
+from engine.scenes import Rod
 
 
 def random_rod(n=60, seed=0):
@@ -31,16 +31,19 @@ def test_gradient_matches_central_differences_on_nonuniform_rod():
 
 
 def test_forces_are_minus_stiffness_times_displacement():
-    """The rod is linear in x: f = -K (x - p) exactly."""
+    """The rod is linear in x, f = -K (x - p), for every state without an inverted segment (its springs
+    measure |x_{j+1} - x_j|, so a segment turned inside out would not be the notes' 1D rod)."""
     rod, rng = random_rod(seed=3)
-    u = 0.01 * rng.standard_normal(rod.n)
+    u = 0.001 * rng.standard_normal(rod.n)
+    assert np.all(np.diff(rod.p + u) > 0)
     f = rod.forces(rod.p + u)
     assert np.max(np.abs(f + rod.stiffness_matrix() @ u)) < 1e-12 * np.max(np.abs(f))
 
 
 def test_energy_is_sum_of_segment_energies():
     rod, rng = random_rod(seed=4)
-    x = rod.p + 0.01 * rng.standard_normal(rod.n)
+    x = rod.p + 0.001 * rng.standard_normal(rod.n)
+    assert np.all(np.diff(x) > 0)  # no inverted segment (the springs measure |x_{j+1} - x_j|)
     s = np.diff(x) / rod.h - 1
     assert rod.energy(x) == pytest.approx(np.sum(0.5 * rod.E * s * s * rod.h), rel=1e-13)
 
@@ -93,10 +96,10 @@ def test_symplectic_euler_blows_up_just_above_cfl_and_reports_the_step():
 def test_pinned_nodes_never_move():
     rod = Rod.uniform(51, pinned=(0, 50))
     st = rod.new_state(1e-3 * np.sin(np.pi * rod.p) + 1e-3)
-    x0 = st.x.to_numpy()
+    x0 = st.positions()
     rod.run(st, 0.5 * rod.h[0], 200)
     rod.run(st, 5 * rod.h[0], 20, "backward-euler")
-    x = st.x.to_numpy()
+    x = st.positions()
     assert x[0] == x0[0] and x[-1] == x0[-1]
 
 
@@ -121,7 +124,7 @@ def test_bad_dt_is_refused(dt):
 
 
 # ------------------------------------------------------------------------------------------
-# velocity Verlet and the per-mode theory of every scheme (engine.rod.amplification)
+# velocity Verlet and the per-mode theory of every scheme (engine.theory.schemes.amplification)
 # ------------------------------------------------------------------------------------------
 
 from engine.integrators import METHODS  # noqa: E402
@@ -131,21 +134,26 @@ from engine.theory.schemes import ModalReference, amplification  # noqa: E402
 @pytest.mark.parametrize("method", list(METHODS))
 @pytest.mark.parametrize("pinned", [(), (0,), (0, 25, 59)])
 def test_kernel_equals_the_schemes_modal_theory(method, pinned):
-    """Every integrator of the rod kernel is, mode by mode, its 2x2 amplification matrix."""
+    """Every integrator of the rod kernel is, mode by mode, its 2x2 amplification matrix (while no
+    segment inverts: forward Euler's growth, up to ~1.9x per step here, is followed for 9 steps of a
+    small start)."""
     rod, rng = random_rod(seed=8)
     rod = Rod(rod.p, rod.E, rod.rho, pinned)
-    u0, v0 = 1e-3 * rng.standard_normal(rod.n), 1e-3 * rng.standard_normal(rod.n)
+    a = 3e-5 if method == "forward-euler" else 1e-3
+    u0, v0 = a * rng.standard_normal(rod.n), a * rng.standard_normal(rod.n)
     u0[list(pinned)] = 0.0
     v0[list(pinned)] = 0.0
     dt = 0.8 * rod.stable_dt()
     st = rod.new_state(u0, v0)
-    rod.run(st, dt, 40, method)
-    rod.run(st, dt, 17, method)  # two launches: a chunked run is the same run
+    n1, n2 = (6, 3) if method == "forward-euler" else (40, 17)
+    rod.run(st, dt, n1, method)
+    rod.run(st, dt, n2, method)  # two launches: a chunked run is the same run
+    assert np.all(np.diff(st.positions()) > 0)
     ref = ModalReference(rod, u0, v0, dt, method)
-    u, v = ref.displacement(57), ref.velocity(57)
+    u, v = ref.displacement(n1 + n2), ref.velocity(n1 + n2)
     assert np.max(np.abs(st.displacement(rod) - u)) < 1e-11 * np.max(np.abs(u))
     assert np.max(np.abs(st.velocity() - v)) < 1e-11 * np.max(np.abs(v))
-    np.testing.assert_allclose(ref.displacements([0, 20, 57, 57]), [u0, ref.displacement(20), u, u],
+    np.testing.assert_allclose(ref.displacements([0, 5, n1 + n2, n1 + n2]), [u0, ref.displacement(5), u, u],
                                rtol=0, atol=1e-13 * np.max(np.abs(u)))
 
 
@@ -174,7 +182,7 @@ def test_velocity_verlet_is_symplectic_euler_with_half_step_shifted_velocities()
         rod.run(vv, dt, 1, "velocity-verlet")
         rod.run(se, dt, 1, "symplectic-euler")
         # x = p + u is of order 1 m: round-off of x, not of u
-        assert np.max(np.abs(vv.x.to_numpy() - se.x.to_numpy())) < 1e-13
+        assert np.max(np.abs(vv.positions() - se.positions())) < 1e-13
     v_before = se.velocity()  # v_{n-1/2}
     rod.run(se, dt, 1, "symplectic-euler")  # v_{n+1/2}: Verlet's v_n is their mean
     np.testing.assert_allclose(vv.velocity(), 0.5 * (v_before + se.velocity()), rtol=0,

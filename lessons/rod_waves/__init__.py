@@ -1,6 +1,6 @@
 """Lesson ``rod-waves``: the 1D elastic rod, its sound waves and the CFL limit.
 
-Physics lives in :mod:`engine.rod`; :mod:`.stages` builds the scenes, runs them and measures,
+Physics lives in the engine (the rod is :class:`engine.scenes.Rod`, a chain Model); :mod:`.stages` builds the scenes, runs them and measures,
 and ``narrative.md`` narrates each stage.
 """
 from __future__ import annotations

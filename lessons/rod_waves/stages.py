@@ -5,7 +5,7 @@ Runs are either *scene* runs (stages 2 and 4: pulses, d'Alembert, reflection, sm
 one particular integrator. Under symplectic Euler and velocity Verlet the scene experiments compare
 with the undamped wave theory; under backward (or forward) Euler with what that scheme itself
 predicts at the run's dt: the initial state is evolved mode by mode with the scheme's exact 2x2
-step matrix (:class:`engine.rod.ModalReference`, numpy) and measured the same way.
+step matrix (:class:`engine.theory.schemes.ModalReference`, numpy) and measured the same way.
 """
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ import numpy as np
 
 from engine.analysis import fit_slope, geometric_growth, peak
 from engine.errors import BlowUpError
-from engine.rod import Rod
+from engine.scenes import Rod
 
 from .._framework import Experiment
 from .._measure import central_gradient, expect, modal_tracks, observation_steps, rod_node_strain, track_peaks
@@ -61,7 +61,7 @@ def simulate(ctx, name: str, rod: Rod, state, dt: float, n_steps: int, method: s
 
     def log(step):
         if rec.enabled:
-            x = state.x.to_numpy()
+            x = state.positions()
             rec.set_time(step, step * dt)
             rec.rod(x, rod.p, rod_node_strain(x, rod.p), gain=gain)
 

@@ -2,7 +2,7 @@
 conservation, stiffness from the speed of sound, a hanging rod.
 
 Physics lives in the engine (:mod:`engine.energies.springs`, :mod:`engine.model`,
-:mod:`engine.integrators.fused`, :mod:`engine.rod`, :mod:`engine.statics`); :mod:`.stages`
+:mod:`engine.integrators`, :class:`engine.scenes.Rod`, :mod:`engine.statics`); :mod:`.stages`
 builds the scenes, runs them and measures, and ``narrative.md`` narrates each stage.
 """
 from __future__ import annotations

@@ -24,7 +24,7 @@ from engine.integrators import get as get_integrator
 from engine.integrators.explicit import stable_dt_estimate
 from engine.integrators.fused import METHODS as FUSED_METHODS, run_fused
 from engine.model import Model, vec3_ndarray
-from engine.rod import Rod
+from engine.scenes import Rod
 from engine.statics import solve_static
 
 from .._framework import Experiment
@@ -567,7 +567,7 @@ def _pulse_speed(ctx, name, model, p, c_scale, sigma, k, rho, p0=0.25):
     (measured speed, predicted speed): the prediction is None for the undamped symplectic methods,
     else the same fit on the scheme's own solution. Moving along its axis the chain is exactly a
     linear 1D rod with E_j = k_j and the same lumped masses, so that solution is
-    :class:`engine.rod.ModalReference` (each normal mode advanced with the scheme's 2x2 step matrix).
+    :class:`engine.theory.schemes.ModalReference` (each normal mode advanced with the scheme's 2x2 step matrix).
     """
     method = ctx.integrator_name("symplectic-euler")
     A = 1e-4

@@ -1,0 +1,1 @@
+"""Linear solvers of the implicit steps that are not in engine/linalg.py (the chain solve of the rod)."""
