@@ -13,7 +13,8 @@ import pytest
 from engine.errors import ParameterError
 from engine.recorder import Recorder, summarize
 from lessons._framework import validate_config
-from lessons.bending import LESSON, BendingConfig, closed_form_ratio
+from lessons.bending import LESSON, BendingConfig
+from lessons.bending.stages import closed_form_ratio
 from tests.helpers import assert_all_passed, cli, run_stage
 
 

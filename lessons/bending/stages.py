@@ -1,0 +1,626 @@
+"""The stages of ``bending`` (their narratives are in narrative.md), the hinges, sheets and
+cylinders they measure on, and the drawings."""
+import math
+
+import numpy as np
+import taichi as ti
+
+from engine import mesh as meshes
+from engine.analysis import convergence_order, fit_slope
+from engine.constants import G
+from engine.energies.bending import BendingEnergy, bridson_u_kernel, theta_gradient_kernel
+from engine.integrators import make_integrator
+from engine.model import Model, vec3_ndarray
+from engine.scenes import cloth
+from engine.statics import solve_static
+
+from .._framework import Experiment
+from .._measure import per_hinge_fd, random_rotation
+from .._scene import simulate
+
+# ------------------------------------------------------------------ hinges and sheets
+
+
+def _hinge_array(H):
+    a = ti.ndarray(dtype=ti.i32, shape=(len(H), 4))
+    a.from_numpy(np.asarray(H, dtype=np.int32))
+    return a
+
+
+def theta_gradient(X, H) -> np.ndarray:
+    """(h, 4, 3) dtheta/dx per hinge slot, from the engine's kernel (G1)-(G3)."""
+    g = ti.ndarray(dtype=ti.math.vec3, shape=(len(H), 4))
+    theta_gradient_kernel(vec3_ndarray(len(X), X), _hinge_array(H), g)
+    return g.to_numpy().astype(np.float64)
+
+
+def bridson_u(X, H) -> np.ndarray:
+    """(h, 4, 3) Bridson et al.'s u vectors in slot order (v0, v1, w0, w1), from the engine."""
+    u = ti.ndarray(dtype=ti.math.vec3, shape=(len(H), 4))
+    bridson_u_kernel(vec3_ndarray(len(X), X), _hinge_array(H), u)
+    return u.to_numpy().astype(np.float64)
+
+
+def analytic_hinge(theta, L=1.0, p0=0.35, r0=0.8, p1=0.7, r1=0.6):
+    """Edge (0,0,0)-(L,0,0); wing w0 in the z = 0 plane; wing w1 turned about the edge so that
+    the dihedral angle is theta (positive: convex on the side the normals point to)."""
+    return np.array([[0.0, 0.0, 0.0], [L, 0.0, 0.0], [p0, r0, 0.0],
+                     [p1, -r1 * math.cos(theta), -r1 * math.sin(theta)]])
+
+
+def random_hinges(rng, m, max_angle=2.5):
+    """m unconnected hinges (vertices 4i..4i+3), random shape, angle, rotation and position,
+    with rest shapes that are flat (the same hinge at theta = 0)."""
+    bent, flat = [], []
+    for _ in range(m):
+        L = rng.uniform(0.6, 1.5)
+        kw = dict(L=L, p0=rng.uniform(-0.3, 1.3) * L, r0=rng.uniform(0.3, 1.2) * L,
+                  p1=rng.uniform(-0.3, 1.3) * L, r1=rng.uniform(0.3, 1.2) * L)
+        Q, t = random_rotation(rng), rng.normal(size=3)
+        bent.append(analytic_hinge(rng.uniform(-max_angle, max_angle), **kw) @ Q.T + t)
+        flat.append(analytic_hinge(0.0, **kw) @ Q.T + t)
+    return np.concatenate(bent), np.concatenate(flat), np.arange(4 * m).reshape(m, 4)
+
+
+def centred(mesh2d):
+    return meshes.Mesh(mesh2d.vertices - mesh2d.vertices.mean(axis=0), triangles=mesh2d.triangles)
+
+
+# Sheets of side 1 m; "axis" is the cylinder axis of cylinder_wrap ("y": x runs around it).
+def sheet(kind: str, n: int, angle_deg: float = 0.0, jitter: float = 0.0, seed: int = 0):
+    """A flat 2D sheet of about 1 m x 1 m with n vertices per side, rotated by angle_deg
+    (counter-clockwise) about its centre, optionally jittered; returns (mesh, axis)."""
+    if kind == "grid":
+        m, axis = meshes.right_triangle_grid(n, n, 1.0, 1.0), "y"
+    else:  # equilateral lattice, rows along x; wrapped about the x axis so rows run along it
+        m, axis = meshes.equilateral_lattice(n, n, 1.0 / (n - 1)), "x"
+    if jitter:
+        m = meshes.jitter(m, jitter, seed)
+    m = centred(m)
+    if angle_deg:
+        m = meshes.rotate_2d(m, math.radians(angle_deg))
+    return m, axis
+
+
+def around(axis: str) -> int:
+    """Index of the flat coordinate that runs around the cylinder."""
+    return 0 if axis == "y" else 1
+
+
+def continuum_energy(B, R, area):
+    """1/2 B H^2 * area with the mean curvature H = 1/(2R) of a cylinder."""
+    return 0.5 * B * (1.0 / (2.0 * R)) ** 2 * area
+
+
+def log_sheet(ctx, name, x, triangles, energy: BendingEnergy, offset=(0.0, 0.0, 0.0)):
+    """One frame of a sheet coloured by bending energy density (nothing if not recording)."""
+    rec = ctx.rec
+    if not rec.enabled:
+        return
+    from engine.recorder import magnitude_colors
+    rec.run(name)
+    rec.set_time(0, 0.0)
+    rec.mesh(np.asarray(x) + np.asarray(offset), triangles, magnitude_colors(energy.energy_density(x)))
+
+
+# ------------------------------------------------------------------------- stage 1
+
+def stage_hinge(ctx):
+    cfg = ctx.cfg
+    rng = np.random.default_rng(cfg.seed)
+    theta_err = _analytic_angle_error()
+    X, Xflat, H = random_hinges(rng, 12)
+    grad_err, u_err = _gradient_errors(X, Xflat, H)
+    energy = BendingEnergy(Xflat, H, 0.7, cfg.bending)
+    f = energy.hinge_forces(X)
+    f_fd = -per_hinge_fd(energy.hinge_energies, X)  # -dW/dx of the chosen variant, hinge by hinge
+    force_err = np.linalg.norm(f - f_fd) / np.linalg.norm(f)
+    net_f, net_tau = _net_force_and_torque(X[H], f)
+    dW, df = _rigid_motion_errors(energy, X, f, rng)
+    exps = [
+        Experiment("theta of an analytic hinge over [-3.1, 3.1] rad (max |error|)", 0.0, theta_err, 1e-13, "abs",
+                   "rad", id="theta-analytic-hinge"),
+        Experiment("dtheta/dx equals central finite differences (rel. error, 12 random hinges)", 0.0, grad_err,
+                   1e-7, "abs", id="theta-gradient-fd"),
+        Experiment("Bridson's u1..u4 equal -dtheta/dx (max difference / max |grad|)", 0.0, u_err, 1e-13, "abs",
+                   id="bridson-u-is-gradient"),
+        Experiment(f"{cfg.bending} force equals -dW/dx by central differences (rel. error)", 0.0, force_err,
+                   1e-7, "abs", id="force-is-energy-gradient"),
+        Experiment("zero net force per hinge (max |sum f| / sum |f|)", 0.0, net_f, 1e-13, "abs", id="zero-net-force"),
+        Experiment("zero net torque per hinge (max |sum x cross f| / sum |f||x|)", 0.0, net_tau, 1e-13, "abs",
+                   id="zero-net-torque"),
+        Experiment("rigid motion leaves the energy unchanged (max rel. change)", 0.0, dW, 1e-12, "abs",
+                   id="rigid-motion-energy"),
+        Experiment("rigid motion rotates the forces with the hinge (max rel. difference)", 0.0, df, 1e-12, "abs",
+                   id="rigid-motion-force"),
+    ]
+    notes = BendingEnergy(analytic_hinge(0.0), np.array([[0, 1, 2, 3]]), 1.0, "notes")
+    exps += _half_angle_experiments(notes)
+    if ctx.rec.enabled:
+        _draw_opening_hinge(ctx.rec, notes)
+    return exps
+
+
+def _analytic_angle_error() -> float:
+    """Max |theta - the built-in angle| of the analytic hinge over (-pi, pi)."""
+    probe = BendingEnergy(analytic_hinge(0.0), np.array([[0, 1, 2, 3]]), 1.0)
+    return max(abs(probe.angles(analytic_hinge(t))[0] - t) for t in np.linspace(-3.1, 3.1, 63))
+
+
+def _gradient_errors(X, Xflat, H):
+    """(the engine's dtheta/dx against central differences, Bridson's u against -dtheta/dx)."""
+    probe = BendingEnergy(Xflat, H, 1.0)
+    g = theta_gradient(X, H)
+    g_fd = per_hinge_fd(probe.angles, X)
+    u = bridson_u(X, H)
+    return np.linalg.norm(g - g_fd) / np.linalg.norm(g), np.abs(u + g).max() / np.abs(g).max()
+
+
+def _net_force_and_torque(xs, f):
+    """Largest net force and net torque per hinge, relative to the sum of the |f| (and |f||x|)."""
+    net_f = (np.linalg.norm(f.sum(axis=1), axis=1) / np.linalg.norm(f, axis=2).sum(axis=1)).max()
+    lever = np.linalg.norm(xs - xs.mean(axis=1, keepdims=True), axis=2)
+    net_tau = (np.linalg.norm(np.cross(xs, f).sum(axis=1), axis=1)
+               / (np.linalg.norm(f, axis=2) * (np.linalg.norm(xs, axis=2) + lever)).sum(axis=1)).max()
+    return net_f, net_tau
+
+
+def _rigid_motion_errors(energy, X, f, rng):
+    """Largest relative change of the energy, and of the forces against the rotated forces, over
+    three random rigid motions."""
+    W0 = energy.energy(X)
+    dW, df = 0.0, 0.0
+    for _ in range(3):
+        Q, t = random_rotation(rng), 5.0 * rng.normal(size=3)
+        Y = X @ Q.T + t
+        dW = max(dW, abs(energy.energy(Y) - W0) / W0)
+        df = max(df, np.abs(energy.hinge_forces(Y) - f @ Q.T).max() / np.abs(f).max())
+    return dW, df
+
+
+def _half_angle_experiments(notes):
+    """Bridson's sin(theta/2) force against the notes' theta force at 0.5 and 1 rad."""
+    bridson = BendingEnergy(analytic_hinge(0.0), np.array([[0, 1, 2, 3]]), 1.0, "bridson")
+    exps = []
+    for th in (0.5, 1.0):
+        x = analytic_hinge(th)
+        fn, fb = notes.hinge_forces(x)[0], bridson.hinge_forces(x)[0]
+        ratio = float((fb * fn).sum() / (fn * fn).sum())
+        exps += [
+            Experiment(f"theta = {th}: Bridson/notes force ratio equals 2 sin(theta/2)/theta",
+                       2 * math.sin(th / 2) / th, ratio, 1e-12, "rel", id=f"bridson-ratio-theta{th}"),
+            Experiment(f"theta = {th}: force ratio equals 1 - theta^2/24 within the truncation error theta^4/1920",
+                       1 - th ** 2 / 24, ratio, th ** 4 / 1920, "abs", id=f"bridson-ratio-series-theta{th}"),
+        ]
+    return exps
+
+
+def _draw_opening_hinge(rec, notes):
+    """The hinge opening from flat to 3 rad, coloured by its energy density."""
+    from engine.recorder import magnitude_colors
+    rec.run("hinge")
+    scale = float(notes.energy_density(analytic_hinge(3.0)).max())
+    for k, th in enumerate(np.linspace(0.0, 3.0, 31)):
+        x = analytic_hinge(th)
+        rec.set_time(k, th)
+        rec.mesh(x, np.array([[0, 1, 2], [1, 0, 3]]), magnitude_colors(notes.energy_density(x), scale))
+        fx = notes.forces(x)
+        rec.line_strips("force", np.stack([x, x + 0.1 * fx], axis=1))
+
+
+# ------------------------------------------------------------------------- stage 2
+
+def _aligned_edges(flat, axis):
+    """Hinges whose flat edge is parallel to the cylinder axis."""
+    H = flat.hinges
+    d = flat.vertices[H[:, 1]] - flat.vertices[H[:, 0]]
+    return np.abs(d[:, around(axis)]) < 1e-9 * np.linalg.norm(d, axis=1)
+
+
+def stage_curvature(ctx):
+    exps = []
+    for kind, label in (("grid", "right-triangle grid"), ("lattice", "equilateral lattice")):
+        exps += _curvature_estimates(ctx, kind, label)
+    exps.append(_energy_scaling(ctx.cfg))
+    return exps
+
+
+def _curvature_estimates(ctx, kind, label, levels=(9, 17, 33)):
+    """theta/(h1 + h2) on the hinges along the axis of a sheet wrapped on the cylinder: with the
+    bent hinge's (chord) heights, with the rest (arc) heights, the other hinges flat, and the
+    chord heights' error order over three refinements."""
+    cfg = ctx.cfg
+    R = cfg.radius
+    exps, chord_err, hs = [], [], []
+    for n in levels:
+        flat, axis = sheet(kind, n)
+        wrapped = meshes.cylinder_wrap(flat, R, axis)
+        energy = BendingEnergy(meshes.embed_3d(flat).vertices, flat.hinges, 1.0, cfg.bending)
+        theta = energy.angles(wrapped.vertices)
+        across = _aligned_edges(flat, axis)
+        bent_h = meshes.hinge_heights(wrapped.vertices, flat.hinges).sum(axis=1)
+        rest_h = energy.geometry["h0"] + energy.geometry["h1"]
+        est_bent = theta[across] / bent_h[across]
+        est_rest = theta[across] / rest_h[across]
+        chord_err.append(float(np.abs(est_bent * 2 * R - 1).max()))
+        hs.append(float(rest_h[across].mean() / 2))
+        if n == levels[-1]:
+            exps += [
+                Experiment(f"{label}, n = {n}: theta/(h1+h2) with the bent hinge's heights -> 1/(2R)",
+                           1 / (2 * R), float(est_bent.mean()), 1e-3, "rel", "1/m", id=f"{kind}-curvature-estimate"),
+                Experiment(f"{label}, n = {n}: with the rest heights the estimate is exact (max rel. error)",
+                           0.0, float(np.abs(est_rest * 2 * R - 1).max()), 1e-12, "abs",
+                           id=f"{kind}-rest-heights-exact"),
+                Experiment(f"{label}: the other hinges are flat (max |theta|)", 0.0,
+                           float(np.abs(theta[~across]).max()), 1e-12, "abs", "rad", id=f"{kind}-other-hinges-flat"),
+            ]
+            log_sheet(ctx, f"{kind}_n{n}", wrapped.vertices, flat.triangles, energy,
+                      (0.0 if kind == "grid" else 2.5, 0.0, 0.0))
+        phi = hs[-1] / (2 * R)
+        ctx.progress(f"{label} n={n}: max error of theta/(h1+h2) (chord heights) {chord_err[-1]:.3e}, "
+                     f"phi/sin(phi) - 1 = {phi / math.sin(phi) - 1:.3e}")
+    exps.append(Experiment(f"{label}: chord-height estimate converges at order 2 in h", 2.0,
+                           convergence_order(np.array(hs), np.array(chord_err)), 0.05, "abs", id=f"{kind}-chord-order"))
+    return exps
+
+
+def _energy_scaling(cfg):
+    """W ~ 1/R^2 on a jittered sheet: the fitted exponent over R/2, R, 2R."""
+    R = cfg.radius
+    flat, axis = sheet("grid", 33, jitter=cfg.jitter, seed=cfg.seed)
+    energy = BendingEnergy(meshes.embed_3d(flat).vertices, flat.hinges, 1.0, cfg.bending)
+    radii = np.array([R / 2, R, 2 * R])
+    W = np.array([energy.energy(meshes.cylinder_wrap(flat, r, axis).vertices) for r in radii])
+    return Experiment("jittered sheet: total energy ~ R^p, fitted exponent p (R/2, R, 2R)", -2.0,
+                      fit_slope(np.log(radii), np.log(W)), 1e-3, "abs", id="jittered-energy-exponent")
+
+
+# ------------------------------------------------------------------------- stage 3
+
+def closed_form_ratio(kind: str, angle_deg: float) -> float:
+    """Small-bend limit of W_notes / W_continuum for a regular mesh (derived in narrative.md,
+    stage 3): 1/3 on the equilateral lattice, (1 - sin 2a + sin^2 2a)/3 on a right-triangle grid
+    turned by a against the axis."""
+    if kind == "lattice":
+        return 1.0 / 3.0
+    s = math.sin(2 * math.radians(angle_deg))
+    return (1 - s + s * s) / 3
+
+
+def sheet_ratio(cfg, kind, n, angle=0.0, variant="notes", jitter=0.0, seed=0, with_prediction=False):
+    """(W / W_continuum, the sheet, the energy, the wrapped positions[, linearised prediction])."""
+    R = cfg.radius
+    flat, axis = sheet(kind, n, angle, jitter, seed)
+    X3 = meshes.embed_3d(flat).vertices
+    energy = BendingEnergy(X3, flat.hinges, 1.0, variant)
+    x = meshes.cylinder_wrap(flat, R, axis).vertices
+    W_cont = continuum_energy(1.0, R, flat.total_measure)
+    ratio = energy.energy(x) / W_cont
+    if not with_prediction:
+        return ratio, flat, energy, x
+    # theta_e ~ sum_i c_i z_i, c_i = dtheta/dz_i at the flat rest, z = -(u.(x_i - x_v0))^2/(2R)
+    H = flat.hinges
+    c = theta_gradient(X3, H)[:, :, 2]
+    q = (flat.vertices[H] - flat.vertices[H[:, :1]])[:, :, around(axis)]
+    theta_lin = -0.5 / R * np.sum(c * q * q, axis=1)  # z_i = -q_i^2/(2R); affine parts drop out
+    pred = 0.5 * float(np.sum(energy.k * theta_lin ** 2)) / W_cont
+    return ratio, flat, energy, x, pred
+
+
+REGULAR = [("grid", 0.0, "right-triangle grid at 0 deg", "grid-0deg"),
+           ("grid", 45.0, "right-triangle grid at 45 deg (diagonals along the axis)", "grid-45deg"),
+           ("lattice", 0.0, "equilateral lattice at 0 deg", "lattice-0deg"),
+           ("lattice", 15.0, "equilateral lattice at 15 deg", "lattice-15deg"),
+           ("grid", 15.0, "right-triangle grid at 15 deg", "grid-15deg"),
+           ("grid", 30.0, "right-triangle grid at 30 deg", "grid-30deg"),
+           ("grid", -45.0, "right-triangle grid at -45 deg (diagonals around the cylinder)", "grid-minus45deg")]
+
+
+def stage_continuum(ctx):
+    cfg = ctx.cfg
+    nf = cfg.finest
+    levels = (nf, (nf + 1) // 2, (nf + 3) // 4)
+    exps = []
+    shown = [0]  # sheets drawn so far (each is drawn beside the last)
+    for kind, angle, label, slug in REGULAR:
+        exps += _regular_ratio(ctx, kind, angle, label, slug, levels, shown)
+    for kind, label in (("grid", "jittered right-triangle grid"), ("lattice", "jittered equilateral lattice")):
+        exps += _jittered_ratio(ctx, kind, label, levels[1], shown)
+    return exps
+
+
+def _regular_ratio(ctx, kind, angle, label, slug, levels, shown):
+    """W_notes / W_continuum on three nested refinements, extrapolated (2 r(h) - r(2h)), against
+    the closed form; at 0 deg on the grid also its finest value and error order, and on three
+    meshes the Discrete Shells ratio."""
+    cfg = ctx.cfg
+    nf = levels[0]
+    r = [sheet_ratio(cfg, kind, n, angle)[0] for n in levels]
+    extrapolated = 2 * r[0] - r[1]
+    theory = closed_form_ratio(kind, angle)
+    ctx.progress(f"{label}: W/W_cont = " + ", ".join(f"{v:.5f} (n={n})" for v, n in zip(r, levels))
+                 + f"; extrapolated {extrapolated:.5f}; closed form {theory:.5f}")
+    exps = [Experiment(f"{label}: notes / continuum, extrapolated to h -> 0", theory, extrapolated, 1e-3, "rel",
+                       id=f"{slug}-ratio-extrapolated")]
+    if kind == "grid" and angle == 0.0:
+        exps.append(Experiment(f"{label}: notes / continuum at the finest level (n = {nf})", 1 / 3, r[0], 1e-2, "rel",
+                               id=f"{slug}-ratio-finest"))
+        h = np.array([1.0 / (n - 1) for n in levels])
+        exps.append(Experiment(f"{label}: the ratio's error shrinks at order 1 (the free-edge strip)", 1.0,
+                               convergence_order(h, np.abs(np.array(r) - theory)), 0.05, "abs",
+                               id=f"{slug}-ratio-error-order"))
+    if (kind, angle) in (("grid", 0.0), ("grid", 45.0), ("lattice", 0.0)):
+        ds, flat, energy, x = sheet_ratio(cfg, kind, nf, angle, variant="discrete-shells")
+        exps.append(Experiment(f"{label}: Discrete Shells / continuum at the finest level (n = {nf})", 1.0, ds, 1e-2,
+                               "rel", id=f"{slug}-discrete-shells-ratio"))
+        if ctx.rec.enabled:
+            log_sheet(ctx, f"{kind}_{angle:g}deg", x, flat.triangles, energy, (2.5 * shown[0], 0.0, 0.0))
+            shown[0] += 1
+    return exps
+
+
+def _jittered_ratio(ctx, kind, label, n, shown):
+    """No closed form on a jittered mesh: the ratio against the linearised sum of its own hinges,
+    and above the regular mesh's."""
+    cfg = ctx.cfg
+    regular = sheet_ratio(cfg, kind, n)[0]
+    r, flat, energy, x, pred = sheet_ratio(cfg, kind, n, jitter=cfg.jitter, seed=cfg.seed, with_prediction=True)
+    ctx.progress(f"{label} (amplitude {cfg.jitter}, n={n}): W/W_cont = {r:.5f}, regular mesh {regular:.5f}, "
+                 f"linearised prediction {pred:.5f}")
+    exps = [
+        Experiment(f"{label}, n = {n}: ratio equals the small-bend sum of its own hinges", pred, r, 1e-3, "rel",
+                   id=f"jittered-{kind}-ratio-predicted"),
+        Experiment(f"{label}, n = {n}: ratio / regular mesh's ratio exceeds 1.01 (mesh-dependent)", 1.01,
+                   r / regular, 0.0, ">=", id=f"jittered-{kind}-ratio-above-regular"),
+    ]
+    if ctx.rec.enabled:
+        log_sheet(ctx, f"{kind}_jittered", x, flat.triangles, energy, (2.5 * shown[0], 0.0, 0.0))
+        shown[0] += 1
+    return exps
+
+
+# ------------------------------------------------------------------------- stage 4
+
+def fold_count(mesh3d, energy: BendingEnergy, x, n, threshold=0.1) -> list:
+    """Runs of one sign of theta on the vertical edges crossing three horizontal lines."""
+    X, H = mesh3d.vertices, mesh3d.hinges
+    d = X[H[:, 1]] - X[H[:, 0]]
+    vertical = np.abs(d[:, 0]) < 1e-9 * np.linalg.norm(d, axis=1)
+    z_mid = 0.5 * (X[H[:, 0], 2] + X[H[:, 1], 2])
+    h = (X[:, 2].max() - X[:, 2].min()) / (n - 1)
+    theta = energy.angles(x)
+    counts = []
+    for frac in (0.25, 0.5, 0.75):
+        z = X[:, 2].min() + (round(frac * (n - 1) - 0.5) + 0.5) * h
+        idx = np.flatnonzero(vertical & (np.abs(z_mid - z) < 1e-6 * h))
+        t = theta[idx[np.argsort(X[H[idx, 0], 0])]]
+        t = t[np.abs(t) > threshold * np.abs(t).max()]
+        counts.append(int(np.count_nonzero(np.sign(t[1:]) != np.sign(t[:-1]))) + 1)
+    return counts
+
+
+def mesh_logger(triangles, energy: BendingEnergy, offset=(0.0, 0.0, 0.0)):
+    """log(rec, state) for simulate(): the mesh coloured by bending energy density."""
+    from engine.recorder import magnitude_colors
+
+    def log(rec, state):
+        x = state.x.to_numpy().astype(np.float64)
+        rec.mesh(x + np.asarray(offset), triangles, magnitude_colors(energy.energy_density(x)))
+    return log
+
+
+def log_static(ctx, name_step, x, triangles, energy, offset, step, time):
+    if ctx.rec.enabled:
+        from engine.recorder import magnitude_colors
+        ctx.rec.set_time(step, time)
+        ctx.rec.mesh(x + np.asarray(offset), triangles, magnitude_colors(energy.energy_density(x)))
+        ctx.rec.mark(name_step, level="INFO")
+
+
+CLOTHS = ("soft", "mid", "stiff")  # the sweep B/10, B, 10 B, in the experiments' ids
+
+
+def stage_cloth(ctx):
+    cfg = ctx.cfg
+    exps, folds = [], []
+    Bs = (cfg.cloth_B / 10, cfg.cloth_B, cfg.cloth_B * 10)
+    for k, B in enumerate(Bs):
+        scene, res = _fall_and_settle(ctx, k, B)
+        exps.append(Experiment(f"B = {B:.3g}: static equilibrium reached (residual)", cfg.static_tol, res.residual,
+                               0, "<=", id=f"cloth-{CLOTHS[k]}-equilibrium"))
+        if not res.converged:
+            ctx.progress(f"B = {B:.3g}: {res.message}")
+        steps = int(round(1.0 / cfg.dt))
+        log_static(ctx, f"cloth_B{B:.3g}: static equilibrium after {res.iterations} Newton iterations", res.x,
+                   scene.mesh.triangles, scene.bending, (1.2 * k, 0.0, 0.0), steps + 1, steps * cfg.dt)
+        count = fold_count(scene.mesh, scene.bending, res.x, cfg.cloth_n)
+        folds.append(float(np.mean(count)))
+        ctx.progress(f"B = {B:.3g} N m: folds along the three lines {count}, Newton {res.iterations} iterations, "
+                     f"residual {res.residual:.2e}")
+        if k == 1:
+            exps += _pin_reactions(cfg, scene.model, res, B)
+    labels = [f"{B:.3g}" for B in Bs]
+    exps += [
+        Experiment(f"folds at B = {labels[0]} >= folds at B = {labels[1]} (mean over three lines)", folds[1], folds[0],
+                   0, ">=", id="folds-soft-vs-mid"),
+        Experiment(f"folds at B = {labels[1]} >= folds at B = {labels[2]}", folds[2], folds[1], 0, ">=",
+                   id="folds-mid-vs-stiff"),
+        Experiment(f"folds at B = {labels[0]} exceed those at B = {labels[2]} by at least one", folds[2] + 1, folds[0],
+                   0, ">=", id="folds-soft-exceed-stiff"),
+    ]
+    return exps
+
+
+def _fall_and_settle(ctx, k: int, B: float):
+    """The k-th cloth of the sweep (bending modulus B) falls for a second from a squeezed, rumpled
+    flat start under backward Euler (fixed to it when --integrator names an explicit method), then
+    Newton finds the static equilibrium nearby. Returns (scene, the static solve)."""
+    cfg = ctx.cfg
+    n = cfg.cloth_n
+    steps = int(round(1.0 / cfg.dt))
+    explicit = ctx.integrator_name("backward-euler") != "backward-euler"  # an explicit --integrator
+    scene = cloth(n, 1.0, E=cfg.cloth_E, rho=cfg.cloth_rho, B=B, variant=cfg.bending)
+    model, X = scene.model, scene.model.X
+    rng = np.random.default_rng(cfg.seed)
+    x0 = X.copy()
+    x0[:, 0] = 0.5 + (X[:, 0] - 0.5) * cfg.cloth_gap
+    x0[model.free, 1] += 1e-3 * rng.standard_normal(int(model.free.sum()))
+    state = model.make_state(x0)
+    offset = (1.2 * k, 0.0, 0.0)
+    integ = make_integrator("backward-euler", solver="cholesky")
+    if explicit and k == 0:
+        ctx.progress(f"the falls are damped relaxations: they stay backward Euler under --integrator "
+                     f"{ctx.stepping.integrator} (fixed)")
+    simulate(ctx, f"cloth_B{B:.3g}", model, state, cfg.dt, steps, integ, every=cfg.record_every,
+             log=mesh_logger(scene.mesh.triangles, scene.bending, offset), fixed=explicit)
+    res = solve_static(model, state.x.to_numpy().astype(np.float64), tol=cfg.static_tol, max_iter=400,
+                       raise_on_failure=False)
+    return scene, res
+
+
+def _pin_reactions(cfg, model, res, B):
+    """The hooks carry the weight (the sum of the pin reactions), up to the free vertices' residual
+    forces: at most (free vertices) x tol x (largest vertex weight)."""
+    weight = float(model.mass.sum()) * G
+    free_w = float(model.mass[model.free].max()) * G
+    bound = int(model.free.sum()) * cfg.static_tol * free_w / weight
+    R = res.reactions.sum(axis=0)
+    return [
+        Experiment(f"B = {B:.3g}: vertical pin reactions / total weight (bound: N tol m_max g / W)",
+                   1.0, R[2] / weight, bound, "abs", id="cloth-mid-vertical-reactions"),
+        Experiment(f"B = {B:.3g}: horizontal pin reactions cancel (|R_x, R_y| / W)", 0.0,
+                   float(np.hypot(R[0], R[1])) / weight, bound, "abs", id="cloth-mid-horizontal-reactions"),
+    ]
+
+
+# ------------------------------------------------------------------------- stage 5
+
+class _Shell:
+    """Half a cylinder (an arch of radius 0.5 m and length 1 m) standing on its pinned straight
+    edges, with rest angles from its curved mesh."""
+
+    R, length = 0.5, 1.0
+
+    def __init__(self, cfg):
+        self.cfg = cfg
+        self.mesh = meshes.half_cylinder(17, 17, self.R, self.length)
+        self.X = np.asarray(self.mesh.vertices)
+        self.feet = np.flatnonzero(self.X[:, 2] < 1e-9 * self.R)
+        self.masses = meshes.lumped_masses(self.mesh, cfg.shell_rho)
+
+    def under(self, g: float):
+        """(model, bending energy) of the shell under gravity g."""
+        cfg, m = self.cfg, self.mesh
+        model = Model.from_springs(self.X, m.edges, c=cfg.shell_E * m.edge_measure, mass=self.masses,
+                                   pinned=self.feet, gravity=[0.0, 0.0, -g])
+        energy = model.add_energy(BendingEnergy.from_mesh(m, cfg.shell_B, cfg.bending, from_rest=True))
+        return model, energy
+
+
+def stage_shell(ctx):
+    cfg = ctx.cfg
+    shell = _Shell(cfg)
+    exps = _rest_shape(cfg, shell)
+    residuals = []
+    exps += _linear_response(ctx, shell, residuals)
+    # the push, then the release (a run without load: backward Euler unless --integrator says otherwise)
+    model, energy = shell.under(cfg.push * G)
+    pushed = solve_static(model, tol=cfg.static_tol, max_iter=200, raise_on_failure=False)
+    residuals.append(pushed.residual)
+    push_d = float(np.linalg.norm(pushed.x - shell.X, axis=1).max()) / shell.R
+    exps += [
+        Experiment("static solves (weight, 2x weight, push) reached the tolerance (max residual)", cfg.static_tol,
+                   max(residuals), 0, "<=", id="static-solves-converged"),
+        Experiment(f"the push ({cfg.push:g} x weight) deforms visibly (max displacement / R)", 1e-2, push_d, 0, ">=",
+                   id="push-deforms"),
+    ]
+    return _release(ctx, shell, pushed.x, push_d, exps)
+
+
+def _rest_shape(cfg, shell: _Shell):
+    """With rest angles from the curved mesh the rest shape carries no force; with theta_bar = 0
+    the bending energy pushes it."""
+    model, energy = shell.under(G)
+    vertex_weight = float(shell.masses[model.free].max()) * G
+    rest_force = np.abs(energy.forces(shell.X)[model.free]).max() / vertex_weight
+    flat_rest = BendingEnergy.from_mesh(shell.mesh, cfg.shell_B, cfg.bending)
+    flat_force = np.abs(flat_rest.forces(shell.X)[model.free]).max() / vertex_weight
+    return [
+        Experiment("rest angles from the curved mesh: no force at rest (max |f| / vertex weight)", 0.0, rest_force,
+                   1e-9, "abs", id="curved-rest-no-force"),
+        Experiment("with theta_bar = 0 the rest shape is pushed (max bending |f| / vertex weight)", 1.0, flat_force,
+                   0, ">=", id="flat-rest-pushes"),
+    ]
+
+
+def _linear_response(ctx, shell: _Shell, residuals: list):
+    """The shell under its own weight and twice it: a small displacement, the pins carry the
+    weight, and twice the load gives twice the displacement (the residuals go to ``residuals``)."""
+    cfg = ctx.cfg
+    exps, d = [], []
+    for factor in (1.0, 2.0):
+        model, energy = shell.under(factor * G)
+        res = solve_static(model, tol=cfg.static_tol, max_iter=200, raise_on_failure=False)
+        residuals.append(res.residual)
+        d.append(float(np.linalg.norm(res.x - shell.X, axis=1).max()))
+        if ctx.rec.enabled:
+            ctx.rec.run(f"weight_x{factor:g}")
+            log_static(ctx, f"weight x{factor:g}: max displacement {d[-1]:.3g} m", res.x, shell.mesh.triangles,
+                       energy, (0.0, 0.0, 0.0), 0, 0.0)
+        if factor == 1.0:
+            weight = float(shell.masses.sum()) * G
+            vertex_weight = float(shell.masses[model.free].max()) * G
+            bound = int(model.free.sum()) * cfg.static_tol * vertex_weight / weight
+            exps += [
+                Experiment("own weight: max displacement / radius is small", 1e-2, d[0] / shell.R, 0, "<=",
+                           id="own-weight-small-displacement"),
+                Experiment("own weight: pin reactions / total weight (bound: N tol m_max g / W)", 1.0,
+                           res.reactions[:, 2].sum() / weight, bound, "abs", id="own-weight-pin-reactions"),
+            ]
+    exps.append(Experiment("twice the weight gives twice the displacement (ratio)", 2.0, d[1] / d[0], 3e-2, "rel",
+                           id="linear-response"))
+    ctx.progress(f"displacements {d[0]:.3e} m, {d[1]:.3e} m (ratio {d[1] / d[0]:.4f})")
+    return exps
+
+
+def _release(ctx, shell: _Shell, x_pushed, push_d, exps):
+    """Release the pushed shell without load for 2 s (a scene run: backward Euler unless
+    --integrator says otherwise). Backward Euler damps it back to rest; an explicit symplectic
+    method keeps the push's energy, and the shell oscillates about its rest shape (virial
+    theorem). Returns ``exps`` with those experiments."""
+    cfg = ctx.cfg
+    X, masses = shell.X, shell.masses
+    free_model, free_energy = shell.under(0.0)
+    state = free_model.make_state(x_pushed)
+    steps = int(round(2.0 / cfg.dt))
+    W0 = free_model.potential_energy(state.x)
+    method = ctx.integrator_name("backward-euler")
+    motion = np.zeros(2)  # explicit methods: sums of M|x - X|^2 and M|v|^2 over the sampled steps
+
+    def observe(step, st):
+        if step:
+            motion[0] += float((masses[:, None] * (st.x.to_numpy() - X) ** 2).sum())
+            motion[1] += float((masses[:, None] * st.v.to_numpy() ** 2).sum())
+
+    _, kin, pot = simulate(ctx, "release", free_model, state, cfg.dt, steps,
+                           make_integrator("backward-euler", solver="cholesky"), every=cfg.record_every,
+                           observe=None if method == "backward-euler" else observe,
+                           log=mesh_logger(shell.mesh.triangles, free_energy, (1.5, 0.0, 0.0)), energy_bound=10 * W0)
+    back = float(np.abs(state.x.to_numpy() - X).max()) / shell.R
+    ctx.progress(f"push: max displacement {push_d:.3e} R; {steps * cfg.dt:g} s after the release: {back:.2e} R")
+    if method == "backward-euler":
+        exps.append(Experiment("2 s after the release the shell is back at rest (max |x - X| / R)", 1e-6, back, 0,
+                               "<=", id="release-back-at-rest"))
+        return exps
+    drift = float(np.abs(kin + pot - W0).max()) / W0
+    virial = float(kin.mean() / pot.mean())
+    ctx.progress(f"{method}: energy {W0:.4g} J at the release, largest deviation {drift:.2e} of it; mean kinetic / "
+                 f"mean elastic energy {virial:.4f} ({len(kin)} samples); rms frequency of the motion "
+                 f"sqrt(<M v^2>/<M u^2>) = {math.sqrt(motion[1] / motion[0]):.4g} rad/s")
+    exps += [
+        Experiment(f"{method} does not damp: total energy after the release = the push's elastic energy "
+                   f"(max |E - W0| / W0)", 0.0, drift, 1e-2, "abs", id="release-keeps-energy"),
+        Experiment(f"{method}: the shell oscillates about its rest shape: mean kinetic / mean elastic energy = 1 "
+                   f"(virial theorem)", 1.0, virial, 5e-2, "rel", id="release-virial"),
+    ]
+    return exps
