@@ -11,7 +11,8 @@ import pytest
 from engine.errors import ParameterError
 from engine.recorder import Recorder, summarize
 from lessons._framework import validate_config
-from lessons.explicit_vs_implicit import LESSON, ExplicitImplicitConfig, _crossover, symplectic_euler_growth
+from lessons.explicit_vs_implicit import LESSON, ExplicitImplicitConfig
+from lessons.explicit_vs_implicit.stages import _crossover, symplectic_euler_growth
 from tests.helpers import assert_all_passed, run_stage
 
 

@@ -1,0 +1,560 @@
+"""The stages of ``explicit-vs-implicit`` (their narratives are in narrative.md), the hanging
+cloth's modes and the watched backward-Euler integrator.
+
+Every run of this lesson is fixed: each claim is about one particular integrator, so
+``--integrator/--solver/--tol`` leave them alone. numpy is used for set-up, eigen-analysis and
+the reference formulas.
+"""
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from engine import diagnostics
+from engine.analysis import fit_slope
+from engine.errors import BlowUpError
+from engine.integrators import make_integrator
+from engine.stability import gershgorin_lambda_max, lambda_max_power
+from engine.model import vec3_ndarray
+from engine.recorder import strain_colors
+from engine.scenes import cloth
+from engine.statics import solve_static
+
+from .._framework import Experiment
+from .._measure import edge_strain, vertex_strain
+from .._scene import simulate
+
+# ------------------------------------------------------------------ cloths, modes, integrators
+
+
+def cloth_logger(scene, offset=(0.0, 0.0, 0.0), scale: float | None = None, skip: int = 1):
+    """log(rec, state) for simulate(): the cloth coloured by strain (blue compressed, red
+    stretched); with ``skip`` > 1 only every skip-th call draws (and always the first)."""
+    sp = scene.springs
+    tris = scene.mesh.triangles
+    calls = [0]
+
+    def log(rec, state):
+        k = calls[0]
+        calls[0] += 1
+        if k % skip:
+            return
+        x = state.x.to_numpy().astype(np.float64)
+        s = vertex_strain(len(x), sp.edges_np, edge_strain(x, sp.edges_np, sp.L_np))
+        rec.mesh(x + np.asarray(offset), tris, strain_colors(s, scale))
+    return log
+
+
+class Watched:
+    """A backward-Euler integrator that keeps, for every step, what its solves did: the largest
+    linear residual, the CG iterations, the Newton iterations, and whether the incremental
+    potential went down at every Newton iteration and the iteration converged: |grad Phi| fell
+    by newton_tol (relative to at least the weight, so a settled cloth converges at once), or the
+    line search found no measurable decrease left."""
+
+    def __init__(self, integrator):
+        self.integrator = integrator
+        self.residuals, self.iterations, self.newton, self.monotone, self.converged = [], [], [], [], []
+        self.solves = 0
+
+    def __getattr__(self, name):  # name, implicit, solver, tol, begin, ... of the wrapped integrator
+        return getattr(self.integrator, name)
+
+    def advance(self, model, state, dt):
+        self.integrator.advance(model, state, dt)
+        info = self.integrator.last_info
+        self.residuals.append(max(info.linear_residuals, default=0.0))
+        self.iterations.append(sum(info.linear_iterations))
+        self.solves += len(info.linear_iterations)
+        self.newton.append(info.newton_iterations)
+        obj = info.objectives
+        self.monotone.append(all(b < a for a, b in zip(obj, obj[1:])))
+        self.converged.append(info.newton_converged or info.line_search_failed
+                              or self.integrator.newton_iterations == 1)
+
+
+def free_modes(model, x, planar: bool = True):
+    """Angular frequencies w and mode shapes (n, 3) of M^-1 H at x over the free vertices (dense
+    eigen-decomposition; small models only). ``planar``: only the in-plane (x, z) motions."""
+    H = model.dense_hessian(vec3_ndarray(model.n, x), psd=False)
+    axes = [0, 2] if planar else [0, 1, 2]
+    free = np.flatnonzero(model.free)
+    dofs = (3 * free[:, None] + np.asarray(axes)[None, :]).ravel()
+    s = 1.0 / np.sqrt(np.repeat(model.mass[free], len(axes)))
+    w2, V = np.linalg.eigh(s[:, None] * H[np.ix_(dofs, dofs)] * s[None, :])
+    shapes = np.zeros((len(w2), model.n, 3))
+    for k in range(len(w2)):
+        u = np.zeros(3 * model.n)
+        u[dofs] = s * V[:, k]
+        shapes[k] = u.reshape(-1, 3)
+    return np.sqrt(np.maximum(w2, 0.0)), w2, shapes
+
+
+def symplectic_euler_growth(z: float) -> float:
+    """Largest |eigenvalue| of symplectic Euler's step matrix for a mode with (w dt)^2 = z:
+    x+ = (1 - z) x + dt v, v+ = v - w^2 dt x, so lambda^2 - (2 - z) lambda + 1 = 0."""
+    b = 2.0 - z
+    disc = b * b - 4.0
+    if disc <= 0.0:
+        return 1.0  # complex pair on the unit circle: stable
+    return (abs(b) + math.sqrt(disc)) / 2.0
+
+
+def in_plane_seed(model, size: float, seed: int) -> np.ndarray:
+    """A random displacement in the cloth's plane (x and z), zero at the pins."""
+    rng = np.random.default_rng(seed)
+    d = np.zeros((model.n, 3))
+    d[:, [0, 2]] = size * rng.standard_normal((model.n, 2))
+    d[model.pinned] = 0.0
+    return d
+
+
+# ------------------------------------------------------------------------- stage 1
+
+@dataclass
+class _HangingCloth:
+    """Stage 1's scene and what every run in it is measured against."""
+
+    scene: object
+    x_eq: np.ndarray       # the hanging equilibrium
+    sag: float             # its largest displacement from the flat rest shape
+    dt_true: float         # the explicit limit 2/w_max (power iteration at x_eq)
+    modes: tuple | None    # (w^2, shapes) of the dense eigen-decomposition at x_eq (small cloths only)
+    seed: np.ndarray       # the in-plane displacement every run starts from (or its opposite)
+    E0: float              # the flat start's energy
+    bound: float           # the blow-up bound: E0 + what the fall can release
+    strain_scale: float    # the strain drawn at full colour
+
+    @property
+    def model(self):
+        return self.scene.model
+
+
+def stage_cfl(ctx):
+    cfg = ctx.cfg
+    scene = cloth(cfg.n, 1.0, E=cfg.E, rho=cfg.rho, B=cfg.B)
+    cl, exps = _hanging_cloth(ctx, scene)
+    survived, n_below, pinned_moved = _symplectic_below(ctx, cl)
+    exps.append(Experiment(f"symplectic Euler at {cfg.below:g} x the limit survives {n_below} steps "
+                           f"({cfg.explicit_time:g} s)", n_below, survived, 0, ">=", id="symplectic-below-survives"))
+    exps += _symplectic_above(ctx, cl)
+    exps += _backward_euler_far_above(ctx, cl, pinned_moved)
+    return exps
+
+
+def _hanging_cloth(ctx, scene):
+    """The hanging equilibrium, the explicit limit (power iteration, checked against the dense
+    eigenvalue on small cloths; Gershgorin's bound and two cruder estimates printed), the seed
+    and the energy bound. Returns (the measured scene, the limit's experiments)."""
+    cfg = ctx.cfg
+    model, X = scene.model, scene.model.X
+    eq = solve_static(model, tol=1e-7, max_iter=200, raise_on_failure=False)
+    x_eq = eq.x
+    sag = float(np.abs(X - x_eq).max())
+    ctx.progress(f"hanging equilibrium: {eq.iterations} Newton steps, residual {eq.residual:.1e}, "
+                 f"largest sag {sag * 1e3:.2f} mm")
+    x_eq_nd = vec3_ndarray(model.n, x_eq)
+    lam_power = abs(lambda_max_power(model, x_eq_nd))
+    lam_gersh = gershgorin_lambda_max(model, x_eq_nd)
+    dt_true = 2.0 / math.sqrt(lam_power)
+    dt_gersh = 2.0 / math.sqrt(lam_gersh)
+    exps = []
+    modes = None
+    if 3 * cfg.n * cfg.n <= 2000:  # dense eigen-decomposition on small cloths
+        _, w2, shapes = free_modes(model, x_eq, planar=False)
+        modes = (w2, shapes)
+        exps.append(Experiment("power iteration's w_max^2 equals the dense eigenvalue of M^-1 H (hanging state)",
+                               float(w2.max()), lam_power, 1e-4, "rel", "1/s^2", id="power-iteration-w-max"))
+    _print_cruder_limits(ctx, scene, dt_true, dt_gersh)
+    exps.append(Experiment(f"Gershgorin's dt is safe: at most the true limit (ratio {dt_gersh / dt_true:.3f})",
+                           dt_true, dt_gersh, 0, "<=", "s", id="gershgorin-dt-safe"))
+    seed = in_plane_seed(model, cfg.seed_size, cfg.seed)
+    E0 = diagnostics.total_energy(model, model.make_state(X))
+    E_eq = model.potential_energy(x_eq_nd)
+    release = E0 - E_eq  # what the fall from the flat shape to the hanging one can set free
+    bound = E0 + release
+    ctx.progress(f"energy: start {E0:.6g} J, equilibrium {E_eq:.6g} J; blow-up bound start + release = {bound:.6g} J")
+    strain_scale = float(np.abs(edge_strain(x_eq, scene.springs.edges_np, scene.springs.L_np)).max())
+    return _HangingCloth(scene, x_eq, sag, dt_true, modes, seed, E0, bound, strain_scale), exps
+
+
+def _print_cruder_limits(ctx, scene, dt_true, dt_gersh):
+    """The explicit limit by Gershgorin, by the per-spring sum 4c/L^2 (every spring adds 4 c/L^2 to
+    both of its vertices' rows) and by the rod formula h/c, as fractions of the true limit."""
+    cfg = ctx.cfg
+    model = scene.model
+    c = math.sqrt(cfg.E / cfg.rho)
+    h = 1.0 / (cfg.n - 1)
+    sp = scene.springs
+    crude = np.zeros(model.n)
+    np.add.at(crude, sp.edges_np.ravel(), np.repeat(4.0 * sp.c_np / sp.L_np ** 2, 2))
+    dt_crude = 2.0 / math.sqrt(float((crude[model.free] / model.mass[model.free]).max()))
+    ctx.progress(f"explicit limit 2/w_max = {dt_true * 1e3:.4f} ms (power iteration); Gershgorin bound "
+                 f"{dt_gersh * 1e3:.4f} ms = {dt_gersh / dt_true:.3f} x the true limit; per-spring sum 4c/L^2: "
+                 f"{dt_crude / dt_true:.3f} x; the rod formula h/c = {h / c * 1e3:.4f} ms = {h / c / dt_true:.3f} x")
+
+
+def _symplectic_below(ctx, cl: _HangingCloth):
+    """Symplectic Euler just below the limit: (steps survived, steps of the run, how far the pins
+    moved)."""
+    cfg = ctx.cfg
+    model, X = cl.model, cl.model.X
+    dt = cfg.below * cl.dt_true
+    n_below = int(math.ceil(cfg.explicit_time / dt))
+    state = model.make_state(X + cl.seed)
+    try:
+        steps, K, W = simulate(ctx, f"symplectic_{cfg.below:g}x", model, state, dt, n_below, "symplectic-euler",
+                               every=cfg.record_every, energy_bound=cl.bound, fixed=True,
+                               log=cloth_logger(cl.scene, (-1.2, 0.0, 0.0), cl.strain_scale))
+        survived = int(steps[-1])
+        ctx.progress(f"{cfg.below:g} x limit: largest energy excess {(K + W).max() - cl.E0:.2e} J over {n_below} "
+                     "steps")
+    except BlowUpError as exc:
+        survived = exc.step
+        ctx.progress(f"{cfg.below:g} x limit: {exc}")
+    pinned_moved = float(np.abs(state.numpy().x[model.pinned] - X[model.pinned]).max())
+    return survived, n_below, pinned_moved
+
+
+def _symplectic_above(ctx, cl: _HangingCloth):
+    """Symplectic Euler just above the limit blows up, detected at the step. A second run with the
+    opposite seed gives the seed's own evolution as the odd part (x+ - x-)/2 (the fall, and
+    whatever the release itself excites, cancel), to compare with the modal prediction."""
+    cfg = ctx.cfg
+    model, X = cl.model, cl.model.X
+    dt = cfg.above * cl.dt_true
+    n_above = int(math.ceil(cfg.explicit_time / dt))
+    detected, message, tracks = [], [], []
+    for sign, name in ((1.0, f"symplectic_{cfg.above:g}x"), (-1.0, f"symplectic_{cfg.above:g}x_opposite_seed")):
+        state = model.make_state(X + sign * cl.seed)
+        track = []
+        try:
+            simulate(ctx, name, model, state, dt, n_above, "symplectic-euler", every=1, energy_bound=cl.bound,
+                     fixed=True, log=cloth_logger(cl.scene, (-1.2, 0.0, 0.0), cl.strain_scale),
+                     observe=lambda s, st: track.append(st.x.to_numpy().astype(np.float64)))
+            detected.append(n_above)
+            message.append("")
+        except BlowUpError as exc:
+            detected.append(exc.step)
+            message.append(str(exc))
+        tracks.append(track)
+    ctx.progress(f"{cfg.above:g} x limit: {message[0] or 'no blow-up'}")
+    exps = [
+        Experiment(f"symplectic Euler at {cfg.above:g} x the limit blows up within {n_above} steps (step detected)",
+                   n_above - 1, detected[0], 0, "<=", id="symplectic-above-blows-up"),
+        Experiment("the blow-up message names the CFL limit", 1.0, float("CFL limit" in message[0]), 0, "abs",
+                   id="blow-up-message-names-cfl"),
+    ]
+    if cl.modes is not None and min(len(tracks[0]), len(tracks[1])) >= 2:
+        exps.append(_seed_growth(ctx, cl, dt, tracks))
+    return exps
+
+
+def _seed_growth(ctx, cl: _HangingCloth, dt, tracks):
+    """The odd part of the two runs against the seed advanced mode by mode with symplectic Euler's
+    step matrix, linearised about the start (the flat sheet: the runs stay within a few mm of it)."""
+    cfg = ctx.cfg
+    model, X = cl.model, cl.model.X
+    _, w2, shapes = free_modes(model, X, planar=True)
+    last = min(len(tracks[0]), len(tracks[1])) - 1  # the last step both runs reached
+    odd = 0.5 * (tracks[0][last] - tracks[1][last])
+    measured = math.sqrt(float((model.mass[:, None] * odd ** 2).sum()))
+    # each mode k: x+ = (1 - w_k^2 dt^2) x + dt v, v+ = v - w_k^2 dt x, from x = c_k, v = 0
+    coef = np.einsum("kij,i,ij->k", shapes, model.mass, cl.seed)  # M-orthonormal shapes
+    xk, vk = coef.copy(), np.zeros_like(coef)
+    for _ in range(last):
+        vk = vk - w2 * dt * xk
+        xk = xk + dt * vk
+    predicted = float(np.linalg.norm(xk))
+    start = float(np.linalg.norm(coef))
+    unstable = int(np.count_nonzero((w2 * dt * dt > 4.0) & (np.abs(coef) > 0)))
+    lam = symplectic_euler_growth((cfg.above * 2.0) ** 2)
+    per_step = (measured / start) ** (1 / last)
+    ctx.progress(f"the seed grew {measured / start:.4g}x in {last} steps ({per_step:.3f} per "
+                 f"step); modal prediction {predicted / start:.4g}x; {unstable} modes have w dt > 2, the fastest "
+                 f"grows {lam:.3f}x per step")
+    return Experiment(f"the seed grows as the modes' step matrices predict ({unstable} modes with w dt > 2; "
+                      f"growth over {last} steps)", predicted / start, measured / start, 1e-2, "rel",
+                      id="seed-growth-modal")
+
+
+def _backward_euler_far_above(ctx, cl: _HangingCloth, pinned_moved: float):
+    """Backward Euler far above the limit: at ``big`` x one Newton iteration per step (Baraff-Witkin's
+    linearised step), at ``huge`` x Newton iterated to convergence (the incremental potential's
+    minimiser). Energy bounded, the hanging equilibrium reached, every solve converged, the pins
+    still (``pinned_moved``: how far they moved in the explicit run)."""
+    cfg = ctx.cfg
+    model, X = cl.model, cl.model.X
+    w1 = None
+    if cl.modes is not None:
+        w2, shapes = cl.modes
+        in_plane = np.abs(shapes[:, :, 1]).max(axis=1) < 1e-9 * np.abs(shapes).max(axis=(1, 2))
+        w1 = math.sqrt(float(w2[in_plane & (w2 > 0)].min()))
+    exps, residuals, bad_steps = [], [], 0
+    for k, (which, factor, newton) in enumerate((("big", cfg.big, 1), ("huge", cfg.huge, 50))):
+        dt = factor * cl.dt_true
+        n_steps = int(math.ceil(cfg.implicit_time / dt))
+        be = Watched(make_integrator("backward-euler", solver="pcg", tol=1e-8, newton_iterations=newton,
+                                     newton_tol=1e-8, max_iter=5000, exact_near_solution=False))
+        state = model.make_state(X + cl.seed)
+        every = max(1, min(cfg.record_every, n_steps // 20))
+        steps, K, W = simulate(ctx, f"backward_euler_{factor:g}x", model, state, dt, n_steps, be, every=every,
+                               fixed=True, log=cloth_logger(cl.scene, (1.2 * k, 0.0, 0.0), cl.strain_scale))
+        x = state.numpy().x
+        pinned_moved = max(pinned_moved, float(np.abs(x[model.pinned] - X[model.pinned]).max()))
+        distance = float(np.abs(x - cl.x_eq).max()) / cl.sag
+        bad = sum(1 for m, c_ in zip(be.monotone, be.converged) if not (m and c_))
+        if w1 is not None:
+            ctx.progress(f"slowest in-plane mode w1 = {w1:.4g} rad/s: linear theory leaves (1 + w1^2 dt^2)^(-N/2) = "
+                         f"{(1 + (w1 * dt) ** 2) ** (-n_steps / 2):.1e} of its amplitude after {n_steps} steps")
+        ctx.progress(f"backward Euler at {factor:g} x ({dt * 1e3:.3g} ms, {n_steps} steps): Newton "
+                     f"{np.mean(be.newton):.1f} iterations/step, CG {np.sum(be.iterations) / max(be.solves, 1):.0f} "
+                     f"iterations/solve, largest residual {max(be.residuals):.1e}; energy max - start "
+                     f"{(K + W).max() - cl.E0:.2e} J; distance to equilibrium / sag {distance:.1e}")
+        exps += [
+            Experiment(f"backward Euler at {factor:g} x the limit: total energy never exceeds the start "
+                       "(initial energy + work of gravity)", cl.E0, float((K + W).max()), 0, "<=", "J",
+                       id=f"backward-euler-{which}-energy-bounded"),
+            Experiment(f"backward Euler at {factor:g} x: reaches the hanging equilibrium after "
+                       f"{n_steps * dt:.3g} s (max |x - x_eq| / largest sag)", 0.0, distance, 1e-3, "abs",
+                       id=f"backward-euler-{which}-reaches-equilibrium"),
+        ]
+        residuals.append(max(be.residuals))
+        bad_steps += bad
+    return exps + [
+        Experiment(f"every Newton iteration lowered the incremental potential, and at {cfg.huge:g} x Newton "
+                   "converged in every step (steps that failed)", 0, bad_steps, 0, "abs", id="newton-steps-sound"),
+        Experiment("every linear solve reached its tolerance (largest relative residual)", 1e-8, max(residuals), 0,
+                   "<=", id="linear-solves-converged"),
+        Experiment("pinned corners never moved (max displacement over all runs)", 0.0, pinned_moved, 0, "abs", "m",
+                   id="pins-never-moved"),
+    ]
+
+
+# ------------------------------------------------------------------------- stage 2
+
+def stage_accuracy(ctx):
+    return _mode_damping(ctx) + _convergence_orders(ctx)
+
+
+def _mode_damping(ctx):
+    """One in-plane eigenmode of a small cloth without gravity, three backward-Euler steps with
+    Newton converged: the energy factor per step against 1/(1 + w^2 dt^2), w dt from 0.1 to 30."""
+    cfg = ctx.cfg
+    exps = []
+    scene = cloth(cfg.mode_n, 1.0, E=cfg.E, rho=cfg.rho, B=cfg.B, gravity=0.0)
+    model, X = scene.model, scene.model.X
+    w, _, shapes = free_modes(model, X, planar=True)
+    order = np.argsort(w)
+    low, mid, top = order[0], order[len(order) // 2], order[-1]
+    amplitude = 1e-6
+    cases = [(low, 0.1), (low, 1.0), (mid, 0.3), (mid, 3.0), (top, 30.0)]
+    for k, (mode, wdt) in enumerate(cases):
+        dt = wdt / w[mode]
+        u = shapes[mode] * (amplitude / np.abs(shapes[mode]).max())
+        state = model.make_state(X + u)
+        E0 = diagnostics.total_energy(model, state)  # the rest shape has zero energy (no gravity)
+        be = make_integrator("backward-euler", solver="cholesky", tol=1e-12, newton_iterations=5, newton_tol=1e-12)
+        steps, K, W = simulate(ctx, f"mode{mode}_wdt{wdt:g}", model, state, dt, 3, be, every=1, fixed=True,
+                               log=cloth_logger(scene, (1.2 * k, 0.0, 0.0)))
+        factor = float(((K[-1] + W[-1]) / E0) ** (1.0 / 3.0))
+        theory = 1.0 / (1.0 + wdt * wdt)
+        ctx.progress(f"mode {mode} (w = {w[mode]:.4g} rad/s), w dt = {wdt:g}: energy factor per step {factor:.6f}, "
+                     f"theory {theory:.6f}; amplitude factor {math.sqrt(factor):.6f}")
+        exps.append(Experiment(f"backward Euler: energy factor per step of a mode at w dt = {wdt:g} is "
+                               "1/(1 + w^2 dt^2)", theory, factor, 1e-4, "rel", id=f"damping-wdt{wdt:g}"))
+    return exps
+
+
+def _convergence_orders(ctx):
+    """A small cloth falls from rest for conv_time: each method's final positions against a
+    Richardson-extrapolated Verlet reference at three step sizes; the orders from the finest pair,
+    and symplectic Euler from the half-step velocity against Verlet."""
+    cfg = ctx.cfg
+    scene = cloth(cfg.conv_n, 1.0, E=cfg.E, rho=cfg.rho, B=cfg.B)
+    model, X = scene.model, scene.model.X
+    T = cfg.conv_time
+    dt_limit = 2.0 / math.sqrt(abs(lambda_max_power(model)))
+    n0 = max(20, int(math.ceil(T / (0.3 * dt_limit))))  # coarsest level: dt <= 0.3 x the explicit limit
+    levels = [n0, 2 * n0, 4 * n0]
+
+    def run(name, integ, n_steps, v0=None):
+        state = model.make_state(X, v0)
+        simulate(ctx, name, model, state, T / n_steps, n_steps, integ, every=n_steps, energy_every=n_steps,
+                 fixed=True, log=cloth_logger(scene))
+        return state.numpy().x
+
+    ref_fine = run("reference_verlet_fine", "velocity-verlet", 8 * levels[-1])
+    ref_coarse = run("reference_verlet_coarse", "velocity-verlet", 4 * levels[-1])
+    ref = (4.0 * ref_fine - ref_coarse) / 3.0  # Richardson: removes Verlet's dt^2 term
+    ref_err = float(np.abs(ref_fine - ref).max())
+    errors, finals = {}, {}
+    be = make_integrator("backward-euler", solver="cholesky", tol=1e-12, newton_iterations=20, newton_tol=1e-9)
+    for name, integ in (("symplectic-euler", "symplectic-euler"), ("velocity-verlet", "velocity-verlet"),
+                        ("backward-euler", be)):
+        finals[name] = [run(f"{name}_N{n}", integ, n) for n in levels]
+        errors[name] = [float(np.abs(x - ref).max()) for x in finals[name]]
+    # symplectic Euler started half a step earlier: v0 - dt a(x0)/2, a(x0) = g on the free vertices at rest
+    n = levels[-1]
+    v_half = np.where(model.free[:, None], -0.5 * (T / n) * model.gravity[None, :], 0.0)
+    x_shifted = run(f"symplectic-euler_half-step-start_N{n}", "symplectic-euler", n, v_half)
+    same = float(np.abs(x_shifted - finals["velocity-verlet"][-1]).max()) / errors["velocity-verlet"][-1]
+    orders = {}
+    dts = T / np.asarray(levels, dtype=float)
+    for name in errors:
+        ratios = np.asarray(errors[name][:-1]) / np.asarray(errors[name][1:])
+        orders[name] = math.log2(ratios[-1])  # from the two finest levels
+        ctx.progress(f"{name}: dt = {', '.join(f'{d * 1e3:.3g}' for d in dts)} ms -> max position error "
+                     f"{', '.join(f'{e:.3e}' for e in errors[name])} m "
+                     f"(ratios {', '.join(f'{r:.3f}' for r in ratios)}), "
+                     f"order {orders[name]:.3f} from the finest pair")
+    ctx.progress(f"reference: Richardson correction {ref_err:.1e} m; symplectic Euler from the half-step velocity "
+                 f"vs Verlet: {same:.1e} of Verlet's error")
+    return [
+        Experiment("backward Euler converges at first order in dt (log2 of the error ratio, finest halving)", 1.0,
+                   orders["backward-euler"], 0.1, "abs", id="backward-euler-first-order"),
+        Experiment("symplectic Euler (from rest under gravity) converges at first order", 1.0,
+                   orders["symplectic-euler"], 0.1, "abs", id="symplectic-euler-first-order"),
+        Experiment("velocity Verlet converges at second order", 2.0, orders["velocity-verlet"], 0.15, "abs",
+                   id="velocity-verlet-second-order"),
+        Experiment("symplectic Euler started from v0 - dt a(x0)/2 has Verlet's positions (difference / Verlet's "
+                   "error)", 0.0, same, 1e-6, "abs", id="half-step-start-is-verlet"),
+        Experiment("the reference's Verlet run has 1/64 of the finest run's error (8x smaller dt, second order; "
+                   "Richardson correction / finest error)", 1.0 / 64.0, ref_err / errors["velocity-verlet"][-1], 0.05,
+                   "rel", id="reference-error-one-64th"),
+    ]
+
+
+# ------------------------------------------------------------------------- stage 3
+
+def _crossover(Es, t_explicit, t_implicit):
+    """E where the explicit/implicit cost ratio crosses 1 (log-linear interpolation), or None."""
+    r = np.log(np.asarray(t_explicit) / np.asarray(t_implicit))
+    logE = np.log(np.asarray(Es))
+    for i in range(len(r) - 1):
+        if r[i] < 0 <= r[i + 1] or r[i] >= 0 > r[i + 1]:
+            f = r[i] / (r[i] - r[i + 1])
+            return float(math.exp(logE[i] + f * (logE[i + 1] - logE[i])))
+    return None
+
+
+def stage_speed(ctx):
+    cfg = ctx.cfg
+    Es = np.geomspace(cfg.E_soft, cfg.E_stiff, cfg.E_values)
+    rows, blown = [], []
+    be_energy_excess = -math.inf
+    for k, E in enumerate(Es):
+        row, excess = _timed_runs(ctx, k, float(E), blown)
+        rows.append(row)
+        be_energy_excess = max(be_energy_excess, excess)
+    steps_exp = np.array([r["steps_exp"] for r in rows])
+    cg = np.array([r["cg_pcg"] for r in rows])
+    slope_exp = fit_slope(np.log(Es), np.log(steps_exp))
+    slope_cg = fit_slope(np.log(Es), np.log(cg))
+    slope_cond = fit_slope(np.log(Es), np.log([r["sqrt_cond"] for r in rows]))
+    summary = _crossovers(ctx, Es, rows, steps_exp, cg)
+    ctx.progress(f"explicit steps per simulated second ~ E^{slope_exp:.3f}; PCG iterations per step ~ E^{slope_cg:.3f} "
+                 f"(sqrt(1 + w_max^2 dt^2) ~ E^{slope_cond:.3f})")
+    ctx.rec.markdown("timings", "## Wall-clock per simulated second (timed on this run's machine; noisy)\n\n"
+                     + _timings_table(rows) + "\n\n" + "\n\n".join(summary)
+                     + f"\n\nExplicit steps per simulated second ~ E^{slope_exp:.3f}; PCG iterations per step ~ "
+                       f"E^{slope_cg:.3f}; sqrt(1 + w_max^2 dt^2) ~ E^{slope_cond:.3f}.")
+    return [
+        Experiment(f"every timed run stayed bounded over the {cfg.frames} frames after the release (runs that "
+                   "blew up)", 0, len(blown), 0, "abs", id="timed-runs-bounded"),
+        Experiment("explicit steps per simulated second grow like E^(1/2) (log-log slope over the sweep)", 0.5,
+                   slope_exp, 0.02, "rel", id="explicit-steps-grow-like-sqrt-e"),
+        Experiment(f"backward Euler keeps dt = {cfg.frame_dt:.4g} s at every E: energy never exceeds the start "
+                   "(largest excess over the sweep)", 0.0, be_energy_excess, 0, "<=", "J",
+                   id="backward-euler-energy-bounded-at-every-e"),
+        Experiment("PCG iterations per step grow with E (stiffest / softest)", 1.0, cg[-1] / cg[0], 0, ">=",
+                   id="pcg-iterations-grow"),
+        Experiment("PCG iterations per step grow no faster than sqrt(1 + w_max^2 dt^2), the square root of the "
+                   "condition-number bound (log-log slopes over the sweep)", slope_cond, slope_cg, 0, "<=",
+                   id="pcg-iterations-below-condition-bound"),
+    ]
+
+
+def _timed_runs(ctx, k: int, E: float, blown: list):
+    """The k-th cloth of the sweep (modulus E), timed over the same frames after the release:
+    symplectic Euler at 0.9 x its limit at rest, backward Euler (one Newton iteration) with pcg
+    and with cholesky at the frame step. Returns (the row of counts and times, backward Euler's
+    largest energy excess over the start); runs that blew up are appended to ``blown``."""
+    cfg = ctx.cfg
+    window = cfg.frames * cfg.frame_dt  # every run covers the same simulated time from the same release
+    scene = cloth(cfg.speed_n, 1.0, E=E, rho=cfg.rho, B=cfg.B)
+    model, X = scene.model, scene.model.X
+    dt_limit = 2.0 / math.sqrt(abs(lambda_max_power(model, rtol=1e-6)))
+    E0 = diagnostics.total_energy(model, model.make_state(X))
+    bound = E0 + float(model.mass.sum()) * float(np.linalg.norm(model.gravity)) * 1.0  # + weight x 1 m
+    offset = (1.2 * k, 0.0, 0.0)
+    row = dict(E=E, sqrt_cond=math.sqrt(1.0 + (2.0 / dt_limit * cfg.frame_dt) ** 2))
+    runs = [("symplectic", "symplectic-euler", 0.9 * dt_limit, int(math.ceil(window / (0.9 * dt_limit))))]
+    runs += [(f"backward_euler_{solver}", Watched(make_integrator("backward-euler", solver=solver, tol=1e-8,
+                                                                newton_iterations=1, max_iter=100000)),
+              cfg.frame_dt, cfg.frames) for solver in ("pcg", "cholesky")]
+    be_energy_excess = -math.inf
+    for j, (label, integ, dt, n) in enumerate(runs):
+        stamps = []
+        state = model.make_state(X)
+        name = f"E{E:.3g}_{label}"
+        try:
+            steps, K, W = simulate(ctx, name, model, state, dt, n, integ, every=1, energy_every=n,
+                                   energy_bound=bound, fixed=True,
+                                   log=cloth_logger(scene, (offset[0], 0.0, -1.2 * j), skip=n),
+                                   observe=lambda s, st: stamps.append(time.perf_counter()))
+        except BlowUpError as exc:
+            blown.append(name)
+            ctx.progress(f"{name}: {exc}")
+            K = W = np.array([math.inf])
+        per_step = float(np.median(np.diff(stamps[1:]))) if len(stamps) > 2 else math.nan  # first step left out
+        row[f"t_{label}"] = per_step / dt  # wall-clock seconds per simulated second
+        if j == 0:
+            row.update(dt_exp=dt, steps_exp=1.0 / dt)
+        else:
+            be_energy_excess = max(be_energy_excess, float((K + W).max() - E0))
+            row[f"cg_{label}"] = float(np.mean(integ.iterations)) if integ.iterations else math.nan
+    row["t_exp"], row["t_pcg"], row["t_cholesky"] = (row["t_symplectic"], row["t_backward_euler_pcg"],
+                                                     row["t_backward_euler_cholesky"])
+    row["cg_pcg"] = row["cg_backward_euler_pcg"]
+    ctx.progress(f"E = {E:.3g} N/m: explicit dt {row['dt_exp'] * 1e6:.1f} us, {row['steps_exp']:.0f} steps/s, "
+                 f"{row['t_exp']:.2f} s per simulated s; backward Euler dt {cfg.frame_dt * 1e3:.2f} ms: pcg "
+                 f"{row['cg_pcg']:.0f} CG iterations/step, {row['t_pcg']:.2f} s per simulated s; cholesky "
+                 f"{row['t_cholesky']:.2f} s per simulated s")
+    return row, be_energy_excess
+
+
+def _crossovers(ctx, Es, rows, steps_exp, cg) -> list[str]:
+    """Where implicit stepping becomes cheaper than explicit: in wall-clock per solver, and in
+    sweeps over the mesh per simulated second (explicit: one force evaluation per step; PCG: one
+    Hessian product per CG iteration plus one force evaluation per step). Printed; returned as text."""
+    cfg = ctx.cfg
+    count_cross = _crossover(Es, steps_exp, (cg + 1.0) / cfg.frame_dt)
+    summary = []
+    for solver in ("pcg", "cholesky"):
+        cross = _crossover(Es, [r["t_exp"] for r in rows], [r[f"t_{solver}"] for r in rows])
+        if cross is None:
+            faster = "backward Euler" if rows[0][f"t_{solver}"] < rows[0]["t_exp"] else "symplectic Euler"
+            text = (f"backward Euler ({solver}) vs symplectic Euler: no crossover in the sweep "
+                    f"({faster} faster throughout)")
+        else:
+            text = (f"backward Euler ({solver}) vs symplectic Euler: wall-clock crossover at E ~ {cross:.3g} N/m "
+                    f"(explicit cheaper below, implicit above)")
+        summary.append(text)
+        ctx.progress(text)
+    counts = ("in sweeps over the mesh per simulated second (explicit: 1 per step; PCG: 1 per CG iteration + 1 per "
+              "step) the crossover is " + (f"at E ~ {count_cross:.3g} N/m" if count_cross else "outside the sweep"))
+    summary.append(counts)
+    ctx.progress(counts)
+    return summary
+
+
+def _timings_table(rows) -> str:
+    """The sweep as a markdown table (the recording's timings document)."""
+    lines = ["| E (N/m) | explicit dt (us) | explicit steps / sim s | PCG iterations / step | sqrt(1 + w_max^2 dt^2) | "
+             "explicit s / sim s | BE-PCG s / sim s | BE-Cholesky s / sim s |", "|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['E']:.3g} | {r['dt_exp'] * 1e6:.1f} | {r['steps_exp']:.0f} | {r['cg_pcg']:.0f} | "
+                     f"{r['sqrt_cond']:.0f} | {r['t_exp']:.3g} | {r['t_pcg']:.3g} | {r['t_cholesky']:.3g} |")
+    return "\n".join(lines)
