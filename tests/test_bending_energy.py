@@ -191,7 +191,7 @@ def test_theta_gradient_matches_finite_differences():
     E = BendingEnergy(X, H, 1.0)
     import taichi as ti
     buf = ti.ndarray(dtype=ti.math.vec3, shape=(len(H), 4))
-    bm.theta_gradient_kernel(vec3_ndarray(len(X), X), E._hinges, buf)
+    bm.theta_gradient_kernel(vec3_ndarray(len(X), X), E.hinges, buf)
     g = buf.to_numpy()
     fd = per_hinge_fd(E.angles, X, 1e-6)
     errs = np.linalg.norm((g - fd).reshape(len(H), -1), axis=1) / np.linalg.norm(fd.reshape(len(H), -1), axis=1)
@@ -212,8 +212,8 @@ def test_bridson_u_vectors_equal_minus_theta_gradient():
     xs = vec3_ndarray(len(X), X)
     g = ti.ndarray(dtype=ti.math.vec3, shape=(len(H), 4))
     u = ti.ndarray(dtype=ti.math.vec3, shape=(len(H), 4))
-    bm.theta_gradient_kernel(xs, E._hinges, g)
-    bm.bridson_u_kernel(xs, E._hinges, u)
+    bm.theta_gradient_kernel(xs, E.hinges, g)
+    bm.bridson_u_kernel(xs, E.hinges, u)
     g, u = g.to_numpy(), u.to_numpy()
     errs = np.linalg.norm((u + g).reshape(len(H), -1), axis=1) / np.linalg.norm(g.reshape(len(H), -1), axis=1)
     assert errs.max() < 1e-12, errs.max()  # u_i = -dtheta/dx_i, measured ~4e-16
@@ -270,7 +270,7 @@ def test_theta_hessian_matches_finite_differences():
 
     def grad(Y):
         buf = ti.ndarray(dtype=ti.math.vec3, shape=(len(H), 4))
-        bm.theta_gradient_kernel(vec3_ndarray(len(Y), Y), E._hinges, buf)
+        bm.theta_gradient_kernel(vec3_ndarray(len(Y), Y), E.hinges, buf)
         return buf.to_numpy()
 
     Ht = blocks_to_12(E.theta_hessian_blocks_numpy(X))
@@ -299,6 +299,56 @@ def test_gauss_newton_hessian_is_psd_and_exact_at_rest_angle(variant):
     G0 = E0.hessian_blocks_numpy(X, psd=True)
     H0 = E0.hessian_blocks_numpy(X, psd=False)
     assert np.abs(G0 - H0).max() < 1e-12 * np.abs(H0).max()
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_gauss_newton_factors_are_the_rank_one_hessian(variant):
+    """w[h, slot] = sqrt(max(W'', 0)) dtheta/dx_slot: w_h w_h^T is the Gauss-Newton block matrix,
+    and the stencil block reader (``block``) and incidences describe the same hinges."""
+    import taichi as ti
+    rng = np.random.default_rng(18)
+    X, H = random_hinges(rng, 30, max_angle=2.5)
+    E = BendingEnergy(X, H, 1.0, variant=variant, theta_bar=rng.uniform(-0.5, 0.5, len(H)))
+    assert E.stencil_size == 4 and E.n_elements == len(H) and "rank-one" in E.products
+    assert np.array_equal(E.elements.to_numpy(), H) and E.elements is E.hinges
+    w = ti.ndarray(dtype=ti.math.vec3, shape=(len(H), 4))
+    E.gauss_newton_factors(X, w)
+    wv = w.to_numpy().reshape(len(H), 12)
+    G = blocks_to_12(E.hessian_blocks_numpy(X, psd=True))
+    assert np.abs(np.einsum("hi,hj->hij", wv, wv) - G).max() < 1e-14 * np.abs(G).max()
+    g = ti.ndarray(dtype=ti.math.vec3, shape=(len(H), 4))
+    bm.theta_gradient_kernel(vec3_ndarray(len(X), X), E.hinges, g)
+    # w is parallel to grad theta (the direction of the single non-zero eigenvector)
+    gv = g.to_numpy().reshape(len(H), 12)
+    cos = np.abs((wv * gv).sum(1)) / (np.linalg.norm(wv, axis=1) * np.linalg.norm(gv, axis=1))
+    assert np.abs(cos - 1.0).max() < 1e-14
+    off, ent = (a.to_numpy() for a in E.slot_incidence)
+    assert np.array_equal(np.sort(H.reshape(-1)[ent]), np.sort(H.reshape(-1)))
+    assert all((H.reshape(-1)[ent[off[v]:off[v + 1]]] == v).all() for v in range(len(X)))
+
+
+def test_force_args_drive_the_force_funcs():
+    """A kernel fusing hinge_force_vectors + hinge_gather with force_args() gives add_forces bitwise."""
+    import taichi as ti
+    from engine.fields import int_array, int_array2, scalar_array, vec3_array, vec3_array2
+
+    @ti.kernel
+    def fused_forces(x: vec3_array, hinges: int_array2, k: scalar_array, theta_bar: scalar_array, mode: ti.i32,
+                     fh: vec3_array2, offsets: int_array, entries: int_array, f: vec3_array):
+        for h in range(hinges.shape[0]):
+            bm.hinge_force_vectors(x, hinges, k, theta_bar, mode, fh, h)
+        for v in range(f.shape[0]):
+            f[v] += bm.hinge_gather(fh, offsets, entries, v)
+
+    rng = np.random.default_rng(19)
+    X, T = bumpy_grid(6, 5, rng, amp=0.25)
+    E = BendingEnergy(X, hinges_from_triangles(T), 1.0, variant="bridson")
+    xs = vec3_ndarray(len(X), X + 0.05 * rng.normal(size=X.shape))
+    f1, f2 = vec3_ndarray(len(X)), vec3_ndarray(len(X))
+    E.add_forces(xs, f1)
+    fused_forces(xs, *E.force_args(), f2)
+    assert np.array_equal(f1.to_numpy(), f2.to_numpy()) and np.abs(f1.to_numpy()).max() > 0
+    assert E.force_args()[:4] == E.hinge_args()
 
 
 def test_hessian_products_diagonal_and_dense_assembly_agree_on_a_grid():
@@ -402,7 +452,7 @@ def test_bridson_force_is_bridsons_formula():
     E = BendingEnergy(rest, H, B, "bridson")
     f = E.hinge_forces(X)
     u = ti.ndarray(dtype=ti.math.vec3, shape=(len(H), 4))
-    bm.bridson_u_kernel(vec3_ndarray(len(X), X), E._hinges, u)
+    bm.bridson_u_kernel(vec3_ndarray(len(X), X), E.hinges, u)
     u = u.to_numpy()
     geo = E.geometry
     N1N2 = 2 * (geo["A0"] + geo["A1"])  # |N1| + |N2| on the rest mesh (k_e uses rest quantities)

@@ -195,6 +195,47 @@ def test_hessian_vector_products_match_assembled_hessian(psd):
     assert np.abs(H_generic - H).max() < 1e-12 * np.abs(H).max()
 
 
+def test_stencil_blocks_and_force_args():
+    """The stencil view (k = 2, elements = edges, block(a, b) = +-K from one stored K per edge)
+    gives the same dense Hessian, and force_args() drives spring_gather like add_forces (bitwise)."""
+    from engine.energies.springs import spring_gather, spring_pair_block
+    from engine.fields import int_array, scalar_array, vec3_array
+
+    @ti.kernel
+    def pair_blocks(blocks: ti.types.ndarray(dtype=ti.math.mat3, ndim=1),
+                    out: ti.types.ndarray(dtype=ti.math.mat3, ndim=2)):
+        for e in range(blocks.shape[0]):
+            for a in ti.static(range(2)):
+                for b in ti.static(range(2)):
+                    out[e, 2 * a + b] = spring_pair_block(blocks, e, a, b)
+
+    @ti.kernel
+    def gathered(x: vec3_array, offsets: int_array, inc_other: int_array, inc_inv_L: scalar_array,
+                 inc_c_over_L: scalar_array, f: vec3_array):
+        for i in range(x.shape[0]):
+            f[i] += spring_gather(x, i, offsets, inc_other, inc_inv_L, inc_c_over_L)
+
+    rng = np.random.default_rng(11)
+    X, edges, k, _ = random_network(11)
+    sp = SpringEnergy.from_rest(X, edges, k=k)
+    assert sp.stencil_size == 2 and sp.n_elements == len(edges) and {"blocks", "pair-gather"} <= sp.products
+    assert np.array_equal(sp.elements.to_numpy(), edges)
+    x = nd(deformed(X, rng))
+    out = ti.ndarray(dtype=ti.math.mat3, shape=(len(edges), 4))
+    pair_blocks(sp.hessian_blocks(x, psd=False), out)
+    B = out.to_numpy()
+    H = np.zeros((3 * len(X), 3 * len(X)))
+    for e, (i, j) in enumerate(edges):
+        for a, va in enumerate((i, j)):
+            for b, vb in enumerate((i, j)):
+                H[3 * va:3 * va + 3, 3 * vb:3 * vb + 3] += B[e, 2 * a + b]
+    assert np.array_equal(H, sp.dense_hessian(x, psd=False))
+    f1, f2 = vec3_ndarray(len(X)), vec3_ndarray(len(X))
+    sp.add_forces(x, f1)
+    gathered(x, *sp.force_args(), f2)
+    assert np.array_equal(f1.to_numpy(), f2.to_numpy()) and np.abs(f1.to_numpy()).max() > 0
+
+
 def test_hessian_at_rest_is_longitudinal_only():
     X, edges, k, _ = random_network(3)
     sp = SpringEnergy.from_rest(X, edges, k=k)

@@ -3,10 +3,35 @@
 Energy is the single source of truth: forces are ``-grad W`` and implicit integrators use the
 Hessian of the same W. ``x``, ``dx``, ``f``, ``out`` are ``ti.ndarray`` of vec3 with one entry
 per model vertex. Pins are handled by the model and the integrators, not by energies.
+
+Stencils.  Most energies are sums over elements of k vertices each (springs: k = 2, hinges:
+k = 4), W = sum_e W_e(x_e0, ..., x_e(k-1)), so the Hessian is a sum of k x k arrays of 3x3 blocks
+H_e,ab = d2W_e / dx_a dx_b.  An energy says so by setting ``stencil_size`` k and ``elements``
+(an (max(m, 1), k) i32 ndarray, the first ``n_elements`` rows valid) and by giving a ti.func
+``block(blocks, e, a, b)`` (a, b compile-time ints) that returns H_e,ab from the array its
+:meth:`hessian_blocks` returns, in whatever compact layout it stores.  That is all the sparse
+assembly (:mod:`engine.assembly`) needs.  ``products`` names the faster products an energy
+offers to the PCG solver (:mod:`engine.linalg`):
+
+``"blocks"``       :meth:`add_block_product` (out += H dx from the stored blocks, computed once
+                   per linear solve).
+``"pair-gather"``  k = 2 with H_e = [[K, -K], [-K, K]]: ``pair_incidence`` is the CSR triple
+                   (offsets (n+1,), inc_edge, inc_other) over which (H p)_i = sum_{e ~ i}
+                   K_e (p_i - p_other) is gathered, K_e = hessian_blocks(x)[e].
+``"rank-one"``     the PSD (Gauss-Newton) Hessian of each element is rank one, H_e = w_e w_e^T:
+                   :meth:`gauss_newton_factors` writes w_e (k vec3 per element) and
+                   ``slot_incidence`` is the CSR pair (offsets (n+1,), entries) listing, per
+                   vertex, k*element + slot in increasing element order.
 """
 import numpy as np
 
 from engine.fields import float_dtype, vec3_ndarray, zero_vec3
+
+
+def stencil_triplets(k: int) -> int:
+    """Nonzeros of the lower triangle of one element's 3k x 3k Hessian: k diagonal blocks x 6
+    plus k(k-1)/2 vertex pairs x 9 (21 for a spring, k = 2; 78 for a hinge, k = 4)."""
+    return 6 * k + 9 * k * (k - 1) // 2
 
 
 class Energy:
@@ -16,10 +41,20 @@ class Energy:
     use the Hessian of the same W.  Subclasses implement the first four methods with
     Taichi kernels; ``x``, ``dx``, ``f``, ``out`` are ``ti.ndarray`` of vec3 with one entry
     per model vertex.  Pins are handled by the model/integrators, not by energies.
+    Stencil energies also set the attributes below (module docstring).
     """
 
     name = "energy"
     n_vertices: int = 0
+
+    # -- stencil description (module docstring) -----------------------------------------------
+    stencil_size: int = 0       # k vertices per element; 0: no per-element block layout
+    n_elements: int = 0         # m
+    elements = None             # (max(m, 1), k) i32 ndarray of element vertices
+    block = None                # ti.func block(blocks, e, a: template, b: template) -> mat3 H_e,ab
+    products: frozenset = frozenset()  # of "blocks", "pair-gather", "rank-one"
+    pair_incidence = None       # "pair-gather": (offsets, inc_edge, inc_other) i32 ndarrays
+    slot_incidence = None       # "rank-one": (offsets, entries) i32 ndarrays, entry = k*element + slot
 
     def energy(self, x) -> float:
         """W(x)."""
@@ -34,8 +69,17 @@ class Energy:
         raise NotImplementedError
 
     def hessian_blocks(self, x, psd: bool = True):
-        """Per-element Hessian blocks (energy-specific layout; documented by the subclass)."""
+        """Per-element Hessian blocks (energy-specific layout, read through ``block``)."""
         raise NotImplementedError
+
+    def add_block_product(self, blocks, dx, out) -> None:
+        """out += H dx from blocks computed by :meth:`hessian_blocks` (``"blocks"`` in products)."""
+        raise NotImplementedError(f"{type(self).__name__} has no block product")
+
+    def gauss_newton_factors(self, x, w) -> None:
+        """w[e, slot] (an (max(m, 1), k) vec3 ndarray) = the factor of the PSD element Hessian
+        H_e = w_e w_e^T (``"rank-one"`` in products)."""
+        raise NotImplementedError(f"{type(self).__name__} has no rank-one Gauss-Newton Hessian")
 
     def add_hessian_diagonal(self, x, diag, psd: bool = True) -> None:
         """diag[i] += H_ii (3x3 vertex diagonal blocks, a mat3 ndarray) for block-Jacobi."""

@@ -80,7 +80,8 @@ product rule (see :func:`_theta_hessian_parts`); the 12x12 Hessian is P^T H9 P w
 map x -> (e, a0, a1).  Checked against finite differences in tests/test_bending_energy.py.
 
 W Hessian:  exact  H = W'' g g^T + W' Hess(theta);  Gauss-Newton (psd)  H = max(W'', 0) g g^T
-(g = grad theta).  At theta = theta_bar (W' = 0) the two coincide.
+(g = grad theta).  At theta = theta_bar (W' = 0) the two coincide.  The Gauss-Newton one is
+rank one, H = w w^T with w = sqrt(max(W'', 0)) g (:meth:`BendingEnergy.gauss_newton_factors`).
 
 Hessian block layout: ``blocks[h, 4*a + b]`` (mat3) is d2W_h/dx_a dx_b for slots a, b in
 [v0, v1, w0, w1] order.
@@ -111,7 +112,8 @@ __all__ = [
     "BendingError", "BendingEnergy", "VARIANTS",
     "hinge_angles_kernel", "theta_gradient_kernel", "bridson_u_kernel", "theta_hessian_kernel",
     "hinge_energies_kernel", "bending_energy_kernel", "hinge_forces_kernel",
-    "hinge_hessian_blocks_kernel", "hinge_hessian_products_kernel", "hinge_hessian_diagonal_kernel",
+    "hinge_hessian_kernel", "hinge_hessian_products_kernel",
+    "hinge_gauss_newton_factors_kernel", "hinge_force_vectors", "hinge_gather", "hinge_block",
     "gather_hinge_vectors_kernel", "gather_hinge_diagonal_kernel",
     "hinge_stiffness",
     "dense_hessian_from_hinge_blocks", "scatter_hinge_vectors_numpy", "validate_hinges",
@@ -251,6 +253,44 @@ def _frame(x: ti.template(), hinges: ti.template(), h):
     return x[hinges[h, 1]] - xv0, x[hinges[h, 2]] - xv0, x[hinges[h, 3]] - xv0
 
 
+@ti.func
+def _hinge_terms(x: ti.template(), hinges: ti.template(), k: ti.template(), theta_bar: ti.template(), mode, h):
+    """Per-hinge set-up of the force and Hessian kernels: the frame (e, a0, a1), W' and W'' of
+    (W1)/(W2) at theta (A1), and g = grad theta (G1)-(G3) over the slots (v0, v1, w0, w1)."""
+    e, a0, a1 = _frame(x, hinges, h)
+    W, W1, W2 = _energy_terms(_theta(e, a0, a1), k[h], theta_bar[h], mode)
+    return e, a0, a1, W1, W2, _theta_grad(e, a0, a1)
+
+
+@ti.func
+def _hinge_block(i: ti.template(), j: ti.template(), psd: ti.template(), W1, W2, g, parts):
+    """Block (i, j) of the hinge's W Hessian: max(W'', 0) g_i g_j^T (psd) or W'' g_i g_j^T +
+    W' Hess(theta)_ij (exact; ``parts`` from :func:`_theta_hessian_parts`, unused if psd)."""
+    out = ti.Matrix.zero(float, 3, 3)
+    if ti.static(psd):
+        out = ti.max(W2, 0.0) * g[i].outer_product(g[j])
+    else:
+        out = W2 * g[i].outer_product(g[j]) + W1 * _theta_block(i, j, *parts)
+    return out
+
+
+@ti.func
+def _hinge_parts(psd: ti.template(), e, a0, a1):
+    """The second derivatives of theta the exact Hessian needs (:func:`_theta_hessian_parts`);
+    zeros, never read, for the Gauss-Newton one."""
+    z = ti.Matrix.zero(float, 3, 3)
+    if ti.static(psd):
+        return z, z, z, z, z, z, z
+    else:
+        return _theta_hessian_parts(e, a0, a1)
+
+
+@ti.func
+def hinge_block(blocks: ti.template(), h, a: ti.template(), b: ti.template()) -> ti.math.mat3:
+    """Block (a, b) = d2W_h/dx_a dx_b of the layout of :meth:`BendingEnergy.hessian_blocks`."""
+    return blocks[h, 4 * a + b]
+
+
 # --------------------------------------------------------------------------------------------
 # Kernels (per hinge, parallel; results per hinge, no atomics)
 # --------------------------------------------------------------------------------------------
@@ -336,9 +376,7 @@ def bending_energy_kernel(x: vec3_array, hinges: hinge_array, k: scalar_array, t
 def hinge_force_vectors(x: ti.template(), hinges: ti.template(), k: ti.template(), theta_bar: ti.template(),
                         mode, fh: ti.template(), h):
     """Pass 1 for hinge h: fh[h, slot] = -dW_h/dx_slot = -W'(theta) dtheta/dx_slot (= W' u, Bridson's u)."""
-    e, a0, a1 = _frame(x, hinges, h)
-    W, W1, W2 = _energy_terms(_theta(e, a0, a1), k[h], theta_bar[h], mode)
-    g = _theta_grad(e, a0, a1)
+    e, a0, a1, W1, W2, g = _hinge_terms(x, hinges, k, theta_bar, mode, h)
     for a in ti.static(range(4)):
         fh[h, a] = -W1 * g[a]
 
@@ -367,24 +405,30 @@ def gather_hinge_vectors_kernel(vh: vec3_array2, offsets: int_array, entries: in
 
 
 @ti.kernel
-def hinge_hessian_blocks_kernel(x: vec3_array, hinges: hinge_array, k: scalar_array, theta_bar: scalar_array,
-                                mode: ti.i32, psd: ti.template(), blocks: mat3_array2):
-    # psd: max(W'', 0) g g^T;  exact: W'' g g^T + W' Hess(theta)
+def hinge_hessian_kernel(x: vec3_array, hinges: hinge_array, k: scalar_array, theta_bar: scalar_array,
+                         mode: ti.i32, psd: ti.template(), diagonal: ti.template(), out: mat3_array2):
+    # psd: max(W'', 0) g g^T;  exact: W'' g g^T + W' Hess(theta).
+    # diagonal=False: out[h, 4a + b] = H_ab (h, 16);  diagonal=True (block-Jacobi pass 1): out[h, a] = H_aa (h, 4)
     for h in range(hinges.shape[0]):
-        e, a0, a1 = _frame(x, hinges, h)
-        W, W1, W2 = _energy_terms(_theta(e, a0, a1), k[h], theta_bar[h], mode)
-        g = _theta_grad(e, a0, a1)
-        if ti.static(psd):
-            c2 = ti.max(W2, 0.0)
-            for i in ti.static(range(4)):
-                for j in ti.static(range(4)):
-                    blocks[h, 4 * i + j] = c2 * g[i].outer_product(g[j])
-        else:
-            H_ee, H_ea0, H_ea1, H_a0e, H_a0a0, H_a1e, H_a1a1 = _theta_hessian_parts(e, a0, a1)
-            for i in ti.static(range(4)):
-                for j in ti.static(range(4)):
-                    blocks[h, 4 * i + j] = W2 * g[i].outer_product(g[j]) + W1 * _theta_block(
-                        i, j, H_ee, H_ea0, H_ea1, H_a0e, H_a0a0, H_a1e, H_a1a1)
+        e, a0, a1, W1, W2, g = _hinge_terms(x, hinges, k, theta_bar, mode, h)
+        parts = _hinge_parts(psd, e, a0, a1)
+        for i in ti.static(range(4)):
+            for j in ti.static(range(4)):
+                if ti.static(not diagonal):
+                    out[h, 4 * i + j] = _hinge_block(i, j, psd, W1, W2, g, parts)
+                elif ti.static(i == j):
+                    out[h, i] = _hinge_block(i, i, psd, W1, W2, g, parts)
+
+
+@ti.kernel
+def hinge_gauss_newton_factors_kernel(x: vec3_array, hinges: hinge_array, k: scalar_array, theta_bar: scalar_array,
+                                      mode: ti.i32, w: vec3_array2):
+    # the Gauss-Newton hinge Hessian max(W'', 0) g g^T = w w^T:  w[h, slot] = sqrt(max(W'', 0)) dtheta/dx_slot
+    for h in range(hinges.shape[0]):
+        e, a0, a1, W1, W2, g = _hinge_terms(x, hinges, k, theta_bar, mode, h)
+        c = ti.sqrt(ti.max(W2, 0.0))
+        for a in ti.static(range(4)):
+            w[h, a] = c * g[a]
 
 
 @ti.kernel
@@ -392,9 +436,7 @@ def hinge_hessian_products_kernel(x: vec3_array, hinges: hinge_array, k: scalar_
                                   mode: ti.i32, psd: ti.template(), dx: vec3_array, yh: vec3_array2):
     # pass 1 of out += H dx: yh[h, a] = sum_b H_ab dx[hinge slot b], blocks recomputed from x
     for h in range(hinges.shape[0]):
-        e, a0, a1 = _frame(x, hinges, h)
-        W, W1, W2 = _energy_terms(_theta(e, a0, a1), k[h], theta_bar[h], mode)
-        g = _theta_grad(e, a0, a1)
+        e, a0, a1, W1, W2, g = _hinge_terms(x, hinges, k, theta_bar, mode, h)
         d = [dx[hinges[h, 0]], dx[hinges[h, 1]], dx[hinges[h, 2]], dx[hinges[h, 3]]]
         gd = g[0].dot(d[0]) + g[1].dot(d[1]) + g[2].dot(d[2]) + g[3].dot(d[3])
         if ti.static(psd):
@@ -402,31 +444,12 @@ def hinge_hessian_products_kernel(x: vec3_array, hinges: hinge_array, k: scalar_
             for i in ti.static(range(4)):
                 yh[h, i] = c * g[i]
         else:
-            H_ee, H_ea0, H_ea1, H_a0e, H_a0a0, H_a1e, H_a1a1 = _theta_hessian_parts(e, a0, a1)
+            parts = _theta_hessian_parts(e, a0, a1)
             for i in ti.static(range(4)):
                 y = (W2 * gd) * g[i]
                 for j in ti.static(range(4)):
-                    y += W1 * (_theta_block(i, j, H_ee, H_ea0, H_ea1, H_a0e, H_a0a0, H_a1e, H_a1a1) @ d[j])
+                    y += W1 * (_theta_block(i, j, *parts) @ d[j])
                 yh[h, i] = y
-
-
-@ti.kernel
-def hinge_hessian_diagonal_kernel(x: vec3_array, hinges: hinge_array, k: scalar_array, theta_bar: scalar_array,
-                                  mode: ti.i32, psd: ti.template(), dh: mat3_array2):
-    # pass 1 of the block diagonal: dh[h, a] = H_aa of hinge h
-    for h in range(hinges.shape[0]):
-        e, a0, a1 = _frame(x, hinges, h)
-        W, W1, W2 = _energy_terms(_theta(e, a0, a1), k[h], theta_bar[h], mode)
-        g = _theta_grad(e, a0, a1)
-        if ti.static(psd):
-            c2 = ti.max(W2, 0.0)
-            for i in ti.static(range(4)):
-                dh[h, i] = c2 * g[i].outer_product(g[i])
-        else:
-            H_ee, H_ea0, H_ea1, H_a0e, H_a0a0, H_a1e, H_a1a1 = _theta_hessian_parts(e, a0, a1)
-            for i in ti.static(range(4)):
-                dh[h, i] = W2 * g[i].outer_product(g[i]) + W1 * _theta_block(
-                    i, i, H_ee, H_ea0, H_ea1, H_a0e, H_a0a0, H_a1e, H_a1a1)
 
 
 @ti.kernel
@@ -556,10 +579,21 @@ class BendingEnergy(Energy):
     Protocol (engine.model.Energy): x, f, dx, out are vec3 ndarrays with one entry per vertex
     (numpy (n, 3) arrays are also accepted; a numpy f/out is updated in place).
     Attributes (numpy, float64): ``hinges_np``, ``k`` (k_e), ``theta_bar``, ``geometry``
-    (engine.geometry.hinge_geometry dict), ``A_e``.
+    (engine.geometry.hinge_geometry dict), ``A_e``.  Taichi ndarrays (size max(h, 1)):
+    ``hinges`` (h, 4) i32, ``k_nd``, ``theta_bar_nd``, the incidence ``offsets`` (n+1,) and
+    ``entries`` (4h,) (entry = 4 hinge + slot), the per-hinge vec3 buffer ``per_hinge_vec`` (h, 4).
+    :meth:`hinge_args` and :meth:`force_args` are the argument tuples of its kernels and of the
+    force ti.funcs :func:`hinge_force_vectors` / :func:`hinge_gather`.
+
+    As a stencil (engine/energies/base.py): k = 4, ``elements`` = ``hinges``, ``block`` reads
+    ``hessian_blocks``' (h, 16) layout, product "rank-one" (:meth:`gauss_newton_factors`,
+    ``slot_incidence`` = (offsets, entries)).
     """
 
     name = "bending"
+    stencil_size = 4
+    block = staticmethod(hinge_block)
+    products = frozenset({"rank-one"})
 
     def __init__(self, rest_positions, hinges, B, variant: str = "notes", theta_bar=None,
                  from_rest: bool = False):
@@ -592,18 +626,24 @@ class BendingEnergy(Energy):
 
         m = max(h, 1)  # ndarrays of size 0 are avoided; kernels are skipped when h == 0
         fdt = float_dtype()
-        self._hinges = ti.ndarray(dtype=ti.i32, shape=(m, 4))
-        self._k = ti.ndarray(dtype=float, shape=m)
-        self._theta_bar = ti.ndarray(dtype=float, shape=m)
-        self._offsets = ti.ndarray(dtype=ti.i32, shape=self.n_vertices + 1)
-        self._entries = ti.ndarray(dtype=ti.i32, shape=max(4 * h, 1))
+        self.hinges = ti.ndarray(dtype=ti.i32, shape=(m, 4))
+        self.k_nd = ti.ndarray(dtype=float, shape=m)
+        self.theta_bar_nd = ti.ndarray(dtype=float, shape=m)
+        self.offsets = ti.ndarray(dtype=ti.i32, shape=self.n_vertices + 1)
+        self.entries = ti.ndarray(dtype=ti.i32, shape=max(4 * h, 1))
         if h:
-            self._hinges.from_numpy(H.astype(np.int32))
-            self._k.from_numpy(self.k.astype(fdt))
-            self._theta_bar.from_numpy(tb.astype(fdt))
-            self._entries.from_numpy(self.entries_np.astype(np.int32))
-        self._offsets.from_numpy(self.offsets_np.astype(np.int32))
-        self._per_hinge_vec = ti.ndarray(dtype=ti.math.vec3, shape=(m, 4))
+            self.hinges.from_numpy(H.astype(np.int32))
+            self.k_nd.from_numpy(self.k.astype(fdt))
+            self.theta_bar_nd.from_numpy(tb.astype(fdt))
+            self.entries.from_numpy(self.entries_np.astype(np.int32))
+        self.offsets.from_numpy(self.offsets_np.astype(np.int32))
+        self.per_hinge_vec = ti.ndarray(dtype=ti.math.vec3, shape=(m, 4))
+        self.n_elements = h
+        self.elements = self.hinges
+        self.slot_incidence = (self.offsets, self.entries)
+        # old private names (engine/integrators/fused_step.py, bench/ read them): same objects
+        self._hinges, self._k, self._theta_bar = self.hinges, self.k_nd, self.theta_bar_nd
+        self._offsets, self._entries, self._per_hinge_vec = self.offsets, self.entries, self.per_hinge_vec
         self._scalars = ti.ndarray(dtype=float, shape=m)
         self._blocks = None
         self._diag = None
@@ -630,51 +670,60 @@ class BendingEnergy(Energy):
             raise BendingError(f"{slot} has shape {tuple(a.shape)}, the bending energy has {self.n_vertices} vertices")
         return a
 
-    def _args(self):
-        return self._hinges, self._k, self._theta_bar, self.mode
+    def hinge_args(self) -> tuple:
+        """(hinges, k_nd, theta_bar_nd, mode): what every per-hinge kernel takes after x."""
+        return self.hinges, self.k_nd, self.theta_bar_nd, self.mode
+
+    _args = hinge_args  # old private name, kept until its readers switch
+
+    def force_args(self) -> tuple:
+        """(hinges, k_nd, theta_bar_nd, mode, per_hinge_vec, offsets, entries): the arguments of
+        :func:`hinge_force_vectors` (after x; its output fh = per_hinge_vec) followed by those of
+        :func:`hinge_gather` (after vh = per_hinge_vec), for kernels fusing the bending forces."""
+        return (*self.hinge_args(), self.per_hinge_vec, self.offsets, self.entries)
 
     def _gather_into(self, out) -> None:
         if isinstance(out, np.ndarray):
             buf = self._vec3(out, "out")
-            gather_hinge_vectors_kernel(self._per_hinge_vec, self._offsets, self._entries, buf)
+            gather_hinge_vectors_kernel(self.per_hinge_vec, self.offsets, self.entries, buf)
             out[...] = buf.to_numpy().reshape(out.shape)
         else:
             self._vec3(out, "out")
-            gather_hinge_vectors_kernel(self._per_hinge_vec, self._offsets, self._entries, out)
+            gather_hinge_vectors_kernel(self.per_hinge_vec, self.offsets, self.entries, out)
 
     # -- protocol ------------------------------------------------------------------------------
     def energy(self, x) -> float:
         """W(x) = sum_e W_e."""
         if self.n_hinges == 0:
             return 0.0
-        return float(bending_energy_kernel(self._vec3(x, "x"), *self._args()))
+        return float(bending_energy_kernel(self._vec3(x, "x"), *self.hinge_args()))
 
     def hinge_energies(self, x) -> np.ndarray:
         """(h,) W_e."""
         if self.n_hinges == 0:
             return np.zeros(0)
-        hinge_energies_kernel(self._vec3(x, "x"), *self._args(), self._scalars)
+        hinge_energies_kernel(self._vec3(x, "x"), *self.hinge_args(), self._scalars)
         return self._scalars.to_numpy()[: self.n_hinges].astype(np.float64)
 
     def angles(self, x) -> np.ndarray:
         """(h,) signed dihedral angles theta (A1), rad."""
         if self.n_hinges == 0:
             return np.zeros(0)
-        hinge_angles_kernel(self._vec3(x, "x"), self._hinges, self._scalars)
+        hinge_angles_kernel(self._vec3(x, "x"), self.hinges, self._scalars)
         return self._scalars.to_numpy()[: self.n_hinges].astype(np.float64)
 
     def hinge_forces(self, x) -> np.ndarray:
         """(h, 4, 3) per-hinge forces -dW_e/dx_slot (pass 1 of :meth:`add_forces`)."""
         if self.n_hinges == 0:
             return np.zeros((0, 4, 3))
-        hinge_forces_kernel(self._vec3(x, "x"), *self._args(), self._per_hinge_vec)
-        return self._per_hinge_vec.to_numpy()[: self.n_hinges].astype(np.float64)
+        hinge_forces_kernel(self._vec3(x, "x"), *self.hinge_args(), self.per_hinge_vec)
+        return self.per_hinge_vec.to_numpy()[: self.n_hinges].astype(np.float64)
 
     def add_forces(self, x, f) -> None:
         """f += -dW/dx: per-hinge forces, then a per-vertex gather (deterministic)."""
         if self.n_hinges == 0:
             return
-        hinge_forces_kernel(self._vec3(x, "x"), *self._args(), self._per_hinge_vec)
+        hinge_forces_kernel(self._vec3(x, "x"), *self.hinge_args(), self.per_hinge_vec)
         self._gather_into(f)
 
     def forces(self, x) -> np.ndarray:
@@ -687,8 +736,8 @@ class BendingEnergy(Energy):
         """out += H(x) dx, H exact or (psd) Gauss-Newton max(W'',0) g g^T."""
         if self.n_hinges == 0:
             return
-        hinge_hessian_products_kernel(self._vec3(x, "x"), *self._args(), bool(psd), self._vec3(dx, "dx"),
-                                      self._per_hinge_vec)
+        hinge_hessian_products_kernel(self._vec3(x, "x"), *self.hinge_args(), bool(psd), self._vec3(dx, "dx"),
+                                      self.per_hinge_vec)
         self._gather_into(out)
 
     def hessian_blocks(self, x, psd: bool = True):
@@ -698,8 +747,14 @@ class BendingEnergy(Energy):
         if self._blocks is None:
             self._blocks = ti.ndarray(dtype=ti.math.mat3, shape=(max(self.n_hinges, 1), 16))
         if self.n_hinges:
-            hinge_hessian_blocks_kernel(self._vec3(x, "x"), *self._args(), bool(psd), self._blocks)
+            hinge_hessian_kernel(self._vec3(x, "x"), *self.hinge_args(), bool(psd), False, self._blocks)
         return self._blocks
+
+    def gauss_newton_factors(self, x, w) -> None:
+        """w[h, slot] = sqrt(max(W''(theta_h), 0)) dtheta_h/dx_slot into the (max(h, 1), 4) vec3
+        ndarray w: the Gauss-Newton hinge Hessian is H_h = w_h w_h^T."""
+        if self.n_hinges:
+            hinge_gauss_newton_factors_kernel(self._vec3(x, "x"), *self.hinge_args(), w)
 
     def hessian_blocks_numpy(self, x, psd: bool = True) -> np.ndarray:
         """(h, 16, 3, 3) float64 copy of :meth:`hessian_blocks`."""
@@ -709,7 +764,7 @@ class BendingEnergy(Energy):
         """(h, 16, 3, 3): Hess(theta) per hinge, same layout."""
         blocks = ti.ndarray(dtype=ti.math.mat3, shape=(max(self.n_hinges, 1), 16))
         if self.n_hinges:
-            theta_hessian_kernel(self._vec3(x, "x"), self._hinges, blocks)
+            theta_hessian_kernel(self._vec3(x, "x"), self.hinges, blocks)
         return blocks.to_numpy()[: self.n_hinges].astype(np.float64)
 
     def add_hessian_diagonal(self, x, diag, psd: bool = True) -> None:
@@ -718,8 +773,8 @@ class BendingEnergy(Energy):
             return
         if self._diag is None:
             self._diag = ti.ndarray(dtype=ti.math.mat3, shape=(self.n_hinges, 4))
-        hinge_hessian_diagonal_kernel(self._vec3(x, "x"), *self._args(), bool(psd), self._diag)
-        gather_hinge_diagonal_kernel(self._diag, self._offsets, self._entries, diag)
+        hinge_hessian_kernel(self._vec3(x, "x"), *self.hinge_args(), bool(psd), True, self._diag)
+        gather_hinge_diagonal_kernel(self._diag, self.offsets, self.entries, diag)
 
     def dense_hessian(self, x, psd: bool = True) -> np.ndarray:
         """Dense (3n, 3n) Hessian assembled in numpy from the blocks (tests, small meshes)."""

@@ -67,6 +67,15 @@ def spring_block(d: ti.math.vec3, inv_L: float, c_over_L: float, psd: ti.i32) ->
     return K
 
 
+@ti.func
+def spring_pair_block(blocks: ti.template(), e, a: ti.template(), b: ti.template()) -> ti.math.mat3:
+    """Block (a, b) of H_e = [[K, -K], [-K, K]] from the compact per-edge K = blocks[e] (S3)/(S4)."""
+    K = blocks[e]
+    if ti.static(a != b):
+        K = -K
+    return K
+
+
 @ti.kernel
 def spring_energy_kernel(x: vec3_array, edges: edge_array, L: scalar_array, c: scalar_array) -> float:
     # (S1) W = sum_e 1/2 c_e (l_e/L_e - 1)^2
@@ -233,9 +242,17 @@ class SpringEnergy(Energy):
     ``offsets`` (n+1,), ``inc_edge``, ``inc_other``, ``inc_inv_L``, ``inc_c_over_L`` (2m,), and a reusable
     ``blocks`` (mat3, m) buffer returned by :meth:`hessian_blocks`.
     Numpy copies: ``edges_np``, ``L_np``, ``c_np``.
+
+    As a stencil (engine/energies/base.py): k = 2, ``elements`` the edges as an (m, 2) i32
+    ndarray, one K per edge (``block``: H_e,aa = K, H_e,ab = -K), products "blocks" and
+    "pair-gather" over ``pair_incidence`` = (offsets, inc_edge, inc_other).
+    :meth:`force_args` is what :func:`spring_gather` takes after (x, i).
     """
 
     name = "springs"
+    stencil_size = 2
+    block = staticmethod(spring_pair_block)
+    products = frozenset({"blocks", "pair-gather"})
 
     def __init__(self, n_vertices: int, edges: np.ndarray, L: np.ndarray, c: np.ndarray,
                  X: np.ndarray | None = None, coef_name: str = "c"):
@@ -265,6 +282,8 @@ class SpringEnergy(Energy):
         if m:
             e_nd.from_numpy(edges.astype(np.int32))
         self.edges = e_nd
+        self.n_elements = m
+        self.elements = int_ndarray(edges.reshape(-1, 2))
         self.offsets = int_ndarray(offsets)
         self.inc_edge = int_ndarray(inc_edge)
         self.inc_other = int_ndarray(inc_other)
@@ -273,7 +292,13 @@ class SpringEnergy(Energy):
         self.inc_inv_L = scalar_ndarray(1.0 / L[inc_edge])
         self.inc_c_over_L = scalar_ndarray((c / L)[inc_edge])
         self.blocks = ti.ndarray(dtype=ti.math.mat3, shape=max(m, 1))
+        self.pair_incidence = (self.offsets, self.inc_edge, self.inc_other)
         self._edge_energy = None
+
+    def force_args(self) -> tuple:
+        """The ndarrays :func:`spring_gather` takes after (x, i): (offsets, inc_other, inc_inv_L,
+        inc_c_over_L), for kernels that fuse the spring forces into their own loops."""
+        return self.offsets, self.inc_other, self.inc_inv_L, self.inc_c_over_L
 
     @staticmethod
     def prepare(X: np.ndarray, edges: np.ndarray, k=None, c=None, L=None):
@@ -343,11 +368,10 @@ class SpringEnergy(Energy):
         return self._edge_energy.to_numpy()[: self.m].astype(np.float64)
 
     def add_forces(self, x, f) -> None:
-        spring_add_forces_kernel(x, self.offsets, self.inc_other, self.inc_inv_L, self.inc_c_over_L, f)
+        spring_add_forces_kernel(x, *self.force_args(), f)
 
     def add_hessian_product(self, x, dx, out, psd: bool = True) -> None:
-        spring_add_hessian_product_kernel(x, dx, self.offsets, self.inc_other, self.inc_inv_L, self.inc_c_over_L,
-                                          int(bool(psd)), out)
+        spring_add_hessian_product_kernel(x, dx, *self.force_args(), int(bool(psd)), out)
 
     def hessian_blocks(self, x, psd: bool = True):
         """Per-edge 3x3 blocks K_e (S3/S4) into the reusable mat3 ndarray ``self.blocks`` (m,),
@@ -361,8 +385,7 @@ class SpringEnergy(Energy):
         spring_add_block_product_kernel(blocks, dx, self.offsets, self.inc_edge, self.inc_other, out)
 
     def add_hessian_diagonal(self, x, diag, psd: bool = True) -> None:
-        spring_add_hessian_diagonal_kernel(x, self.offsets, self.inc_other, self.inc_inv_L, self.inc_c_over_L,
-                                           int(bool(psd)), diag)
+        spring_add_hessian_diagonal_kernel(x, *self.force_args(), int(bool(psd)), diag)
 
     def hessian_blocks_numpy(self, x, psd: bool = True) -> np.ndarray:
         return self.hessian_blocks(x, psd).to_numpy()[: self.m].astype(np.float64)
