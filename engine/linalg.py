@@ -27,31 +27,37 @@ Two solvers share one interface (:func:`make_solver`):
 
 ``pcg``       preconditioned conjugate gradient in Taichi kernels, matrix-free.  3x3 block-
               Jacobi preconditioner from each energy's add_hessian_diagonal (plus a m_i I).
-              Three code paths, chosen per solve:
-              * whole-loop (springs and/or one bending energy, psd, below SERIAL_BELOW
-                vertices): the entire CG loop is one serial kernel: spring blocks K_e
-                (SpringEnergy.hessian_blocks, once per solve) gathered per vertex over the CSR
-                incidence, bending as rank-one hinge factors w_h (H_h = w_h w_h^T, extracted
-                once per solve from the Gauss-Newton blocks), dot products, axpys and the
-                preconditioner fused.  No launch per iteration.
+              The code path is chosen per solve from the products the energies declare
+              (``Energy.products``, engine/energies/base.py):
+              * whole-loop (at most one "pair-gather" energy, e.g. springs, and at most one
+                "rank-one" energy, e.g. bending, nothing else; psd; below SERIAL_BELOW
+                vertices): the entire CG loop is one serial kernel: pair blocks K_e
+                (hessian_blocks, once per solve) gathered per vertex over the energy's
+                pair_incidence, the rank-one energy as its Gauss-Newton factors w_e
+                (H_e = w_e w_e^T, gauss_newton_factors, once per solve) gathered over its
+                slot_incidence, dot products, axpys and the preconditioner fused.  No launch
+                per iteration.
               * fused parallel (same energies, larger meshes): three launches per iteration
-                (per-hinge s_h = w_h . p; per-vertex direction + product + p.q; step +
+                (per-element s_e = w_e . p; per-vertex direction + product + p.q; step +
                 preconditioner + r.z, r.r).
               * generic (any energies, exact Hessian, extra term): each energy's
-                add_block_product or add_hessian_product, 4 + per-energy launches.
+                add_block_product ("blocks" energies, blocks computed once per solve) or
+                add_hessian_product, 4 + per-energy launches.
               When the recurrence says "converged" the true residual (L3) is computed and,
               if it drifted above the tolerance, CG restarts from the current y (residual
               replacement).
 ``cholesky``  direct sparse LL^T (Eigen, ``ti.linalg.SparseSolver``, f64) of A assembled from
-              the per-element blocks by ``ti.linalg.SparseMatrixBuilder(dtype=ti.f64)`` in one
-              kernel per energy (the builder's default is f32 and it never checks its capacity,
-              so the triplet capacity is computed exactly).  Only the lower triangle is
-              written (Eigen's LL^T reads nothing else): 21 triplets per spring instead of
-              4 x 9, 78 per hinge instead of 16 x 9, 3 per vertex; twice the element part with
-              an extra term.  That halves assembly (64x64 cloth: 65 -> ~35 ms).  The pattern is
-              analysed once per model (cached on the solver), the numbers are factorised on
-              every solve.  The residual (L3) is checked with a matrix-free product; up to two
-              steps of iterative refinement are taken if it is above the tolerance.
+              the per-element blocks by ``ti.linalg.SparseMatrixBuilder(dtype=ti.f64)``
+              (:mod:`engine.assembly`: one kernel template for every stencil energy, reading
+              the energy's blocks through its ``block`` ti.func; the builder's default is f32
+              and it never checks its capacity, so the triplet capacity is computed exactly).
+              Only the lower triangle is written (Eigen's LL^T reads nothing else):
+              6k + 9k(k-1)/2 triplets per k-vertex element instead of 9k^2 (21 per spring,
+              78 per hinge), 3 per vertex; twice the element part with an extra term.  That
+              halves assembly (64x64 cloth: 65 -> ~35 ms).  The pattern is analysed once per
+              model (cached on the solver), the numbers are factorised on every solve.  The
+              residual (L3) is checked with a matrix-free product; up to two steps of
+              iterative refinement are taken if it is above the tolerance.
 
 A solve that ends above the tolerance (or a failed factorisation, or p.Ap <= 0 in CG) is
 reported (``LinearSolveInfo.converged`` False, ``message``) and callers raise
@@ -81,10 +87,10 @@ from typing import NamedTuple
 import numpy as np
 import taichi as ti
 
+from engine.assembly import assemble_energy, assemble_mass, triplet_capacity
 from engine.constants import SERIAL_BELOW
-from engine.fields import (axpy_inplace, edge_array, float_dtype, free_dot, int_array, mat3_array, mat3_array2,
-                           scalar_array, vec3_array, vec3_array2, vec3_ndarray, zero_pinned, zero_vec3)
-from engine.fields import int_array2 as hinge_array
+from engine.fields import (axpy_inplace, float_dtype, free_dot, int_array, int_array2, mat3_array, scalar_array,
+                           vec3_array, vec3_array2, vec3_ndarray, zero_pinned, zero_vec3)
 from engine.model import Model
 
 __all__ = ["SolverError", "LinearSolveInfo", "LinearSolver", "PCGSolver", "CholeskySolver", "SOLVERS",
@@ -210,6 +216,28 @@ def _pcg_direction(beta: float, z: vec3_array, p: vec3_array, mass: scalar_array
         q[i] = a * mass[i] * pi
 
 
+@ti.func
+def _step_vertex(i, alpha, p: ti.template(), q: ti.template(), Pinv: ti.template(), y: ti.template(),
+                 r: ti.template(), z: ti.template()):
+    # free vertex i: y_i += alpha p_i ; r_i -= alpha q_i ; z_i = P_i^-1 r_i ; returns (r_i.z_i, r_i.r_i)
+    y[i] += alpha * p[i]
+    ri = r[i] - alpha * q[i]
+    zi = Pinv[i] @ ri
+    r[i] = ri
+    z[i] = zi
+    return ti.math.vec2(ri.dot(zi), ri.dot(ri))
+
+
+@ti.func
+def _add_rank_one(qi, i, b_off: ti.template(), b_ent: ti.template(), w: ti.template(), s: ti.template(),
+                  k: ti.template()):
+    # qi + sum_{(e, slot) ~ i} s_e w_e,slot over the incidence (entry = k e + slot), summed in that order
+    for j in range(b_off[i], b_off[i + 1]):
+        ent = b_ent[j]
+        qi += s[ent // k] * w[ent // k, ent % k]
+    return qi
+
+
 @ti.kernel
 def _pcg_step(alpha: float, p: vec3_array, q: vec3_array, inv_mass: scalar_array, Pinv: mat3_array,
               y: vec3_array, r: vec3_array, z: vec3_array, serial: ti.template()) -> ti.math.vec2:
@@ -218,52 +246,21 @@ def _pcg_step(alpha: float, p: vec3_array, q: vec3_array, inv_mass: scalar_array
     ti.loop_config(serialize=serial)
     for i in range(p.shape[0]):
         if inv_mass[i] > 0.0:
-            y[i] += alpha * p[i]
-            ri = r[i] - alpha * q[i]
-            zi = Pinv[i] @ ri
-            r[i] = ri
-            z[i] = zi
-            acc += ti.math.vec2(ri.dot(zi), ri.dot(ri))
+            acc += _step_vertex(i, alpha, p, q, Pinv, y, r, z)
     return acc
 
 
 @ti.kernel
-def _hinge_factors(blocks: mat3_array2, w: vec3_array2):
-    # The PSD (Gauss-Newton) hinge Hessian is rank one, H_ab = c g_a g_b^T (engine/energies/bending.py),
-    # so H = w w^T with w_a = H_ak e_j / sqrt(H_kk[j, j]) for the largest diagonal entry (k, j).
-    for h in range(blocks.shape[0]):
-        best = 0.0
-        kb = 0
-        jb = 0
-        for k in ti.static(range(4)):
-            for j in ti.static(range(3)):
-                d = blocks[h, 5 * k][j, j]
-                if d > best:
-                    best = d
-                    kb = k
-                    jb = j
-        ej = ti.math.vec3(0.0)
-        for j in ti.static(range(3)):
-            if j == jb:
-                ej[j] = 1.0
-        scale = 0.0
-        if best > 0.0:
-            scale = 1.0 / ti.sqrt(best)
-        for a in ti.static(range(4)):
-            w[h, a] = scale * (blocks[h, 4 * a + kb] @ ej)
-
-
-@ti.kernel
-def _hinge_s(w: vec3_array2, hinges: hinge_array, z: vec3_array, p: vec3_array, beta: float, s: scalar_array,
-             serial: ti.template()):
-    # s_h = w_h . (z + beta p) over the hinge's four vertices (the new direction, formed on the fly)
+def _rank_one_s(w: vec3_array2, elements: int_array2, z: vec3_array, p: vec3_array, beta: float, s: scalar_array,
+                k: ti.template(), serial: ti.template()):
+    # s_e = w_e . (z + beta p) over the element's k vertices (the new direction, formed on the fly)
     ti.loop_config(serialize=serial)
-    for h in range(hinges.shape[0]):
+    for e in range(elements.shape[0]):
         acc = 0.0
-        for a in ti.static(range(4)):
-            v = hinges[h, a]
-            acc += w[h, a].dot(z[v] + beta * p[v])
-        s[h] = acc
+        for a in ti.static(range(k)):
+            v = elements[e, a]
+            acc += w[e, a].dot(z[v] + beta * p[v])
+        s[e] = acc
 
 
 @ti.kernel
@@ -271,21 +268,20 @@ def _fused_direction_product(beta: float, z: vec3_array, p: vec3_array, p_new: v
                              mass: scalar_array, inv_mass: scalar_array, a: float,
                              s_off: int_array, s_edge: int_array, s_other: int_array, s_blocks: mat3_array,
                              b_off: int_array, b_ent: int_array, w: vec3_array2, s: scalar_array,
-                             serial: ti.template()) -> float:
-    # p_new = z + beta p ; q = a' M p_new + sum_{e ~ i} K_e (p_new_i - p_new_j) + sum_{(h, slot) ~ i} s_h w_h,slot
-    # (springs (S4) blocks, hinges rank one); returns p_new . q over free vertices.  p and p_new are
-    # different buffers, so the neighbours' new directions are formed from (z, p) without a race.
+                             k: ti.template(), serial: ti.template()) -> float:
+    # p_new = z + beta p ; q = a' M p_new + sum_{e ~ i} K_e (p_new_i - p_new_j) + sum_{(e, slot) ~ i} s_e w_e,slot
+    # (pair-gather blocks, e.g. springs (S4); rank-one k-vertex elements, e.g. hinges); returns p_new . q over
+    # free vertices.  p and p_new are different buffers, so the neighbours' new directions are formed
+    # from (z, p) without a race.
     acc = 0.0
     ti.loop_config(serialize=serial)
     for i in range(z.shape[0]):
         pi = z[i] + beta * p[i]
         qi = a * mass[i] * pi
-        for k in range(s_off[i], s_off[i + 1]):
-            j = s_other[k]
-            qi += s_blocks[s_edge[k]] @ (pi - (z[j] + beta * p[j]))
-        for k in range(b_off[i], b_off[i + 1]):
-            ent = b_ent[k]
-            qi += s[ent // 4] * w[ent // 4, ent % 4]
+        for m in range(s_off[i], s_off[i + 1]):
+            j = s_other[m]
+            qi += s_blocks[s_edge[m]] @ (pi - (z[j] + beta * p[j]))
+        qi = _add_rank_one(qi, i, b_off, b_ent, w, s, k)
         p_new[i] = pi
         q[i] = qi
         if inv_mass[i] > 0.0:
@@ -298,8 +294,8 @@ def _pcg_whole_serial(beta0: float, rz0: float, target2: float, max_iter: ti.i32
                       z: vec3_array, p: vec3_array, q: vec3_array, r: vec3_array, y: vec3_array,
                       mass: scalar_array, inv_mass: scalar_array, a: float, Pinv: mat3_array,
                       s_off: int_array, s_edge: int_array, s_other: int_array, s_blocks: mat3_array,
-                      hinges: hinge_array, n_hinges: ti.i32, b_off: int_array, b_ent: int_array,
-                      w: vec3_array2, s: scalar_array) -> ti.math.vec3:
+                      elements: int_array2, n_elements: ti.i32, b_off: int_array, b_ent: int_array,
+                      w: vec3_array2, s: scalar_array, k: ti.template()) -> ti.math.vec3:
     # The whole CG loop in one serial kernel (small problems: no launch or argument overhead per
     # iteration).  Starts from r, z, p set by _pcg_restart (beta0 = 0).  Same arithmetic as the
     # fused path: p = z + beta p ; q = A' p ; alpha = r.z / p.q ; y += alpha p ; r -= alpha q ;
@@ -314,20 +310,18 @@ def _pcg_whole_serial(beta0: float, rz0: float, target2: float, max_iter: ti.i32
     for _ in range(max_iter):
         for i in range(n):
             p[i] = z[i] + beta * p[i]
-        for h in range(n_hinges):
+        for e in range(n_elements):
             acc = 0.0
-            for sl in ti.static(range(4)):
-                acc += w[h, sl].dot(p[hinges[h, sl]])
-            s[h] = acc
+            for sl in ti.static(range(k)):
+                acc += w[e, sl].dot(p[elements[e, sl]])
+            s[e] = acc
         pq = 0.0
         for i in range(n):
             pi = p[i]
             qi = a * mass[i] * pi
-            for k in range(s_off[i], s_off[i + 1]):
-                qi += s_blocks[s_edge[k]] @ (pi - p[s_other[k]])
-            for k in range(b_off[i], b_off[i + 1]):
-                ent = b_ent[k]
-                qi += s[ent // 4] * w[ent // 4, ent % 4]
+            for m in range(s_off[i], s_off[i + 1]):
+                qi += s_blocks[s_edge[m]] @ (pi - p[s_other[m]])
+            qi = _add_rank_one(qi, i, b_off, b_ent, w, s, k)
             q[i] = qi
             if inv_mass[i] > 0.0:
                 pq += pi.dot(qi)
@@ -335,17 +329,12 @@ def _pcg_whole_serial(beta0: float, rz0: float, target2: float, max_iter: ti.i32
             bad = 1
             break
         alpha = rz / pq
-        rz_new = 0.0
-        rr = 0.0
+        acc2 = ti.math.vec2(0.0)
         for i in range(n):
             if inv_mass[i] > 0.0:
-                y[i] += alpha * p[i]
-                ri = r[i] - alpha * q[i]
-                zi = Pinv[i] @ ri
-                r[i] = ri
-                z[i] = zi
-                rz_new += ri.dot(zi)
-                rr += ri.dot(ri)
+                acc2 += _step_vertex(i, alpha, p, q, Pinv, y, r, z)
+        rz_new = acc2[0]
+        rr = acc2[1]
         it += 1
         if rr <= target2:
             break
@@ -355,84 +344,15 @@ def _pcg_whole_serial(beta0: float, rz0: float, target2: float, max_iter: ti.i32
 
 
 # --------------------------------------------------------------------------------------------
-# Kernels: sparse assembly (one triplet per nonzero of every block; duplicates are summed)
-# --------------------------------------------------------------------------------------------
-
-@ti.kernel
-def _assemble_mass(A: ti.types.sparse_matrix_builder(), mass: scalar_array, inv_mass: scalar_array, a: float):
-    # a m_i on the diagonal of free vertices, 1 for pinned (eliminated) ones: 3 triplets per vertex
-    ti.loop_config(serialize=True)  # triplets in a fixed order: the factorisation is bitwise reproducible
-    for i in range(mass.shape[0]):
-        val = a * mass[i]
-        if inv_mass[i] == 0.0:
-            val = 1.0
-        for d in ti.static(range(3)):
-            A[3 * i + d, 3 * i + d] += val
-
-
-@ti.kernel
-def _assemble_springs(A: ti.types.sparse_matrix_builder(), edges: edge_array, blocks: mat3_array,
-                      inv_mass: scalar_array, scale: float):
-    # H_e = [[K, -K], [-K, K]] on (i, j)   (S3)/(S4); rows/cols of pinned vertices dropped.
-    # Lower triangle only (row >= col): Eigen's LL^T reads only that half.  21 triplets per edge.
-    ti.loop_config(serialize=True)  # triplets in a fixed order: the factorisation is bitwise reproducible
-    for e in range(edges.shape[0]):
-        i = edges[e][0]
-        j = edges[e][1]
-        K = scale * blocks[e]
-        fi = inv_mass[i] > 0.0
-        fj = inv_mass[j] > 0.0
-        lo = ti.max(i, j)
-        hi = ti.min(i, j)
-        for r in ti.static(range(3)):
-            for s in ti.static(range(3)):
-                k = K[r, s]
-                if ti.static(r >= s):
-                    if fi:
-                        A[3 * i + r, 3 * i + s] += k
-                    if fj:
-                        A[3 * j + r, 3 * j + s] += k
-                if fi and fj:
-                    A[3 * lo + r, 3 * hi + s] += -k  # K is symmetric: block (lo, hi) = -K
-
-
-@ti.kernel
-def _assemble_hinges(A: ti.types.sparse_matrix_builder(), hinges: hinge_array, blocks: mat3_array2,
-                     inv_mass: scalar_array, scale: float):
-    # blocks[h, 4a+b] = d2W_h/dx_a dx_b on slots (v0, v1, w0, w1); pinned rows/cols dropped.
-    # Lower triangle only: blocks with va > vb in full, diagonal blocks (a = b) for r >= s:
-    # 6 x 9 + 4 x 6 = 78 triplets per hinge.
-    ti.loop_config(serialize=True)  # triplets in a fixed order: the factorisation is bitwise reproducible
-    for h in range(hinges.shape[0]):
-        for ab in range(16):
-            va = hinges[h, ab // 4]
-            vb = hinges[h, ab % 4]
-            if inv_mass[va] > 0.0 and inv_mass[vb] > 0.0 and va >= vb:
-                K = scale * blocks[h, ab]
-                for r in ti.static(range(3)):
-                    for s in ti.static(range(3)):
-                        if va > vb or r >= s:
-                            A[3 * va + r, 3 * vb + s] += K[r, s]
-
-
-# --------------------------------------------------------------------------------------------
 # Operator helpers
 # --------------------------------------------------------------------------------------------
 
-def _is_springs(e) -> bool:
-    from engine.energies.springs import SpringEnergy
-    return isinstance(e, SpringEnergy)
-
-
-def _is_bending(e) -> bool:
-    from engine.energies.bending import BendingEnergy
-    return isinstance(e, BendingEnergy)
-
-
-def _hessian_plan(model: Model, x, psd: bool = True, extra=None):
+def _hessian_plan(model: Model, x, psd: bool = True, extra=None, blocks: dict | None = None):
     """One callable per energy, ``add(p, q)``: q += H_e(x) p with the PSD (or exact) Hessian.
-    Energies with stored blocks (springs) compute them here, once per solve.  ``extra`` =
-    (s, x2) appends q += s H_psd(x2) p (matrix-free, through a scratch array)."""
+    Energies offering the "blocks" product (springs) compute their blocks here, once per solve
+    (and put them in ``blocks[id(energy)]`` if a dict is given); the others use
+    add_hessian_product.  ``extra`` = (s, x2) appends q += s H_psd(x2) p (matrix-free, through a
+    scratch array)."""
     plan = []
     if extra is not None and extra[0] != 0.0:
         s, x2 = float(extra[0]), extra[1]
@@ -444,9 +364,11 @@ def _hessian_plan(model: Model, x, psd: bool = True, extra=None):
             axpy_inplace(q, t, s)
         plan.append(add_extra)
     for e in model.energies:
-        if hasattr(e, "add_block_product") and hasattr(e, "hessian_blocks"):
-            blocks = e.hessian_blocks(x, psd)
-            plan.append(lambda p, q, e=e, blocks=blocks: e.add_block_product(blocks, p, q))
+        if "blocks" in e.products:
+            eb = e.hessian_blocks(x, psd)
+            if blocks is not None:
+                blocks[id(e)] = eb
+            plan.append(lambda p, q, e=e, eb=eb: e.add_block_product(eb, p, q))
         else:
             plan.append(lambda p, q, e=e: e.add_hessian_product(x, p, q, psd))
     return plan
@@ -475,24 +397,6 @@ def apply_system(model: Model, x, p, q, mass_coef: float, hess_coef: float = 1.0
         raise ValueError(f"hess_coef must be > 0 (got {hess_coef!r})")
     _apply_plan(model, _hessian_plan(model, x, psd, _scaled(extra, c)), float(mass_coef) / c, p, q)
     _filtered_scale(q, model.inv_mass_nd, c)
-
-
-def triplet_capacity(model: Model) -> int:
-    """Exact number of triplets :class:`CholeskySolver` may write for the lower triangle: 3 per
-    vertex (mass or the identity of a pinned vertex), 21 per spring (two diagonal blocks x 6 +
-    one off-diagonal block x 9), 78 per hinge (4 diagonal blocks x 6 + 6 vertex pairs x 9).
-    An upper bound where pins drop entries; never exceeded."""
-    cap = 3 * model.n
-    for e in model.energies:
-        if _is_springs(e):
-            cap += 21 * e.m
-        elif _is_bending(e):
-            cap += 78 * e.n_hinges
-        else:
-            raise NotImplementedError(
-                f"cholesky cannot assemble the {getattr(e, 'name', type(e).__name__)} energy "
-                f"({type(e).__name__}): no per-element block layout is known; use solver='pcg'")
-    return cap
 
 
 # --------------------------------------------------------------------------------------------
@@ -524,12 +428,19 @@ class LinearSolver:
 
     def _entry(self, model: Model) -> dict:
         """Per-model cache, rebuilt if the model's energy list changed."""
-        key = tuple((id(e), getattr(e, "m", None), getattr(e, "n_hinges", None)) for e in model.energies)
+        key = tuple((id(e), e.n_elements) for e in model.energies)
         entry = self._cache.get(model)
         if entry is None or entry["key"] != key:
             entry = {"key": key}
             self._cache[model] = entry
         return entry
+
+    def _coefficients(self, mass_coef: float, hess_coef: float) -> tuple[float, float]:
+        """(a, c) of (L1) as floats; ValueError unless a >= 0 and c > 0."""
+        a, c = float(mass_coef), float(hess_coef)
+        if c <= 0.0 or a < 0.0:
+            raise ValueError(f"{self.name} needs mass_coef >= 0 and hess_coef > 0 (got {a!r}, {c!r})")
+        return a, c
 
     def _info(self, iterations: int, residual: float, message: str = "") -> LinearSolveInfo:
         info = LinearSolveInfo(int(iterations), float(residual), bool(residual <= self.tol), self.name,
@@ -544,14 +455,15 @@ class LinearSolver:
 class PCGSolver(LinearSolver):
     """Matrix-free block-Jacobi preconditioned CG with Baraff-Witkin filtering (module docstring).
 
-    Fast paths (``fused=True``), used when the model's energies are at most one SpringEnergy and
-    at most one BendingEnergy and psd=True: below SERIAL_BELOW vertices (or ``serial=True``) the
-    whole CG loop is one serial kernel; otherwise three parallel launches per iteration (per-hinge
-    s_h = w_h . p with the rank-one Gauss-Newton hinge Hessian H_h = w_h w_h^T; per-vertex
-    direction p = z + beta p, q = a' M p + sum_springs K_e (p_i - p_j) + sum_hinges s_h w_h,slot
-    and p.q; step + preconditioner + r.z, r.r).  Otherwise (other energies, psd=False, an
-    extra term, ``fused=False``) the generic path calls each energy's block or Hessian-vector
-    product (4 + per-energy launches per iteration)."""
+    Fast paths (``fused=True``), used when the model's energies are at most one declaring the
+    "pair-gather" product (springs) and at most one declaring "rank-one" (bending), nothing else,
+    and psd=True: below SERIAL_BELOW vertices (or ``serial=True``) the whole CG loop is one serial
+    kernel; otherwise three parallel launches per iteration (per-element s_e = w_e . p with the
+    rank-one Gauss-Newton Hessian H_e = w_e w_e^T; per-vertex direction p = z + beta p,
+    q = a' M p + sum_pairs K_e (p_i - p_j) + sum_elements s_e w_e,slot and p.q; step +
+    preconditioner + r.z, r.r).  Otherwise (other energies, psd=False, an extra term,
+    ``fused=False``) the generic path calls each energy's block or Hessian-vector product
+    (4 + per-energy launches per iteration)."""
 
     name = "pcg"
 
@@ -568,59 +480,50 @@ class PCGSolver(LinearSolver):
                          q=vec3_ndarray(n), Pinv=ti.ndarray(dtype=ti.math.mat3, shape=n))
         return entry
 
-    def _fused_setup(self, model: Model, entry: dict, x, psd: bool):
-        """Arguments of the fused kernels, or None if the fast path does not apply."""
+    def _fused_setup(self, model: Model, entry: dict, x, psd: bool, blocks: dict):
+        """Arguments of the fused kernels, or None if the fast path does not apply:
+        (pair-gather energy's (offsets, inc_edge, inc_other, blocks), with the blocks the plan
+        computed; the rank-one work dict: elements, n elements, k, incidence off/ent, factors w
+        from gauss_newton_factors, scratch s).  A missing energy gets empty stand-ins (n = 0)."""
         if not (self.fused and psd):
             return None
-        springs = [e for e in model.energies if _is_springs(e)]
-        bends = [e for e in model.energies if _is_bending(e)]
-        if len(springs) + len(bends) != len(model.energies) or len(springs) > 1 or len(bends) > 1:
+        pairs = [e for e in model.energies if "pair-gather" in e.products]
+        ranks = [e for e in model.energies if "rank-one" in e.products and "pair-gather" not in e.products]
+        if len(pairs) + len(ranks) != len(model.energies) or len(pairs) > 1 or len(ranks) > 1:
             return None
-        if "dummy_off" not in entry:
-            entry["dummy_off"] = ti.ndarray(dtype=ti.i32, shape=model.n + 1)  # zeros: no incidences
-            entry["dummy_i"] = ti.ndarray(dtype=ti.i32, shape=1)
-            entry["dummy_m3"] = ti.ndarray(dtype=ti.math.mat3, shape=1)
-            entry["dummy_w"] = ti.ndarray(dtype=ti.math.vec3, shape=(1, 4))
-            entry["dummy_s"] = ti.ndarray(dtype=float, shape=1)
-            entry["dummy_h"] = ti.ndarray(dtype=ti.i32, shape=(1, 4))
-        if springs and springs[0].m:
-            sp = springs[0]
-            s_args = (sp.offsets, sp.inc_edge, sp.inc_other, sp.hessian_blocks(x, True))
-        else:
-            s_args = (entry["dummy_off"], entry["dummy_i"], entry["dummy_i"], entry["dummy_m3"])
-        hinge = None
-        if bends and bends[0].n_hinges:
-            be = bends[0]
-            key = ("hinge", id(be))
+        if "no_pair" not in entry:
+            off = ti.ndarray(dtype=ti.i32, shape=model.n + 1)  # zeros: no incidences
+            i1 = ti.ndarray(dtype=ti.i32, shape=1)
+            entry["no_pair"] = (off, i1, i1, ti.ndarray(dtype=ti.math.mat3, shape=1))
+            entry["no_rank"] = dict(elements=ti.ndarray(dtype=ti.i32, shape=(1, 1)), n=0, k=1, off=off, ent=i1,
+                                    w=ti.ndarray(dtype=ti.math.vec3, shape=(1, 1)), s=ti.ndarray(dtype=float, shape=1))
+        pair = entry["no_pair"]
+        if pairs and pairs[0].n_elements:
+            pair = (*pairs[0].pair_incidence, blocks[id(pairs[0])])
+        rank = entry["no_rank"]
+        if ranks and ranks[0].n_elements:
+            e = ranks[0]
+            key = ("rank-one", id(e))
             if key not in entry:
-                h = be.n_hinges
-                hn = ti.ndarray(dtype=ti.i32, shape=(h, 4))
-                hn.from_numpy(be.hinges_np.astype(np.int32))
-                off = ti.ndarray(dtype=ti.i32, shape=model.n + 1)
-                off.from_numpy(be.offsets_np.astype(np.int32))
-                ent = ti.ndarray(dtype=ti.i32, shape=4 * h)
-                ent.from_numpy(be.entries_np.astype(np.int32))
-                entry[key] = dict(hinges=hn, off=off, ent=ent, w=ti.ndarray(dtype=ti.math.vec3, shape=(h, 4)),
-                                  s=ti.ndarray(dtype=float, shape=h))
-            hinge = entry[key]
-            _hinge_factors(be.hessian_blocks(x, True), hinge["w"])
-            b_args = (hinge["off"], hinge["ent"], hinge["w"], hinge["s"])
-        else:
-            b_args = (entry["dummy_off"], entry["dummy_i"], entry["dummy_w"], entry["dummy_s"])
-        return s_args, b_args, hinge
+                m, k = e.n_elements, e.stencil_size
+                off, ent = e.slot_incidence
+                entry[key] = dict(elements=e.elements, n=m, k=k, off=off, ent=ent,
+                                  w=ti.ndarray(dtype=ti.math.vec3, shape=(m, k)), s=ti.ndarray(dtype=float, shape=m))
+            rank = entry[key]
+            e.gauss_newton_factors(x, rank["w"])
+        return pair, rank
 
     def solve(self, model: Model, x, b, y, mass_coef: float, hess_coef: float = 1.0,
               psd: bool = True, extra=None) -> LinearSolveInfo:
-        a, c = float(mass_coef), float(hess_coef)
-        if c <= 0.0 or a < 0.0:
-            raise ValueError(f"pcg needs mass_coef >= 0 and hess_coef > 0 (got {a!r}, {c!r})")
+        a, c = self._coefficients(mass_coef, hess_coef)
         w = self._work(model)
         r, z, q, Pinv = w["r"], w["z"], w["q"], w["Pinv"]
         p, p2 = w["p"], w["p2"]
         inv_mass, mass = model.inv_mass_nd, model.mass_nd
         a_s = a / c  # solve A' y = b / c with A' = a' M + H
-        plan = _hessian_plan(model, x, psd, _scaled(extra, c))
-        fused = None if _scaled(extra, c) is not None else self._fused_setup(model, w, x, psd)
+        blocks = {}
+        plan = _hessian_plan(model, x, psd, _scaled(extra, c), blocks)
+        fused = None if _scaled(extra, c) is not None else self._fused_setup(model, w, x, psd, blocks)
         serial = self.serial if self.serial is not None else model.n < SERIAL_BELOW
         whole = fused is not None and serial  # the whole CG loop in one serial kernel
 
@@ -645,21 +548,20 @@ class PCGSolver(LinearSolver):
         while True:
             beta = 0.0  # after a (re)start: p = z
             if whole and it < self.max_iter and rr > target2:
-                s_args, b_args, hinge = fused
-                hn = hinge["hinges"] if hinge is not None else w["dummy_h"]
+                pair, rk = fused
                 k_it, rr, bad = _pcg_whole_serial(0.0, rz, target2, self.max_iter - it, z, p, q, r, y, mass,
-                                                  inv_mass, a_s, Pinv, *s_args, hn,
-                                                  0 if hinge is None else hinge["hinges"].shape[0], *b_args)
+                                                  inv_mass, a_s, Pinv, *pair, rk["elements"], rk["n"], rk["off"],
+                                                  rk["ent"], rk["w"], rk["s"], rk["k"])
                 it += int(k_it)
                 if bad:
                     message = "A is not positive definite on a search direction (p.Ap <= 0)"
             while not whole and it < self.max_iter and rr > target2:
                 if fused is not None:
-                    s_args, b_args, hinge = fused
-                    if hinge is not None:
-                        _hinge_s(hinge["w"], hinge["hinges"], z, p, beta, hinge["s"], serial)
-                    pq = _fused_direction_product(beta, z, p, p2, q, mass, inv_mass, a_s, *s_args, *b_args,
-                                                  serial)
+                    pair, rk = fused
+                    if rk["n"]:
+                        _rank_one_s(rk["w"], rk["elements"], z, p, beta, rk["s"], rk["k"], serial)
+                    pq = _fused_direction_product(beta, z, p, p2, q, mass, inv_mass, a_s, *pair, rk["off"],
+                                                  rk["ent"], rk["w"], rk["s"], rk["k"], serial)
                     p, p2 = p2, p
                 else:
                     _pcg_direction(beta, z, p, mass, a_s, q, serial)  # p = z + beta p ; q = a' M p
@@ -703,13 +605,6 @@ class CholeskySolver(LinearSolver):
             entry["builder"] = ti.linalg.SparseMatrixBuilder(N, N, max_num_triplets=cap, dtype=ti.f64)
             entry["solver"] = ti.linalg.SparseSolver(dtype=ti.f64, solver_type="LLT")
             entry["analyzed"] = False
-            hinges = {}
-            for e in model.energies:
-                if _is_bending(e) and e.n_hinges:
-                    h = ti.ndarray(dtype=ti.i32, shape=(e.n_hinges, 4))
-                    h.from_numpy(e.hinges_np.astype(np.int32))
-                    hinges[id(e)] = h
-            entry["hinges"] = hinges
             entry["q"] = vec3_ndarray(model.n)
             entry["dy"] = vec3_ndarray(model.n)
             entry["free_dofs"] = np.repeat(model.free, 3)
@@ -733,24 +628,17 @@ class CholeskySolver(LinearSolver):
                 entry["builder2"] = ti.linalg.SparseMatrixBuilder(
                     N, N, max_num_triplets=2 * entry["capacity"] - 3 * model.n, dtype=ti.f64)
             B = entry["builder2"]
-        _assemble_mass(B, model.mass_nd, model.inv_mass_nd, a_s)
+        assemble_mass(B, model.mass_nd, model.inv_mass_nd, a_s)
         terms = [(1.0, x, psd)] if extra is None else [(extra[0], extra[1], True), (1.0, x, psd)]
         for scale, xx, ps in terms:
             for e in model.energies:
-                if _is_springs(e):
-                    if e.m:
-                        _assemble_springs(B, e.edges, e.hessian_blocks(xx, ps), model.inv_mass_nd, scale)
-                elif _is_bending(e):
-                    if e.n_hinges:
-                        _assemble_hinges(B, entry["hinges"][id(e)], e.hessian_blocks(xx, ps), model.inv_mass_nd,
-                                         scale)
+                if e.n_elements:
+                    assemble_energy(B, e, e.hessian_blocks(xx, ps), model.inv_mass_nd, scale)
         return B.build()  # empties the builder; lower triangle of the symmetric A' only
 
     def solve(self, model: Model, x, b, y, mass_coef: float, hess_coef: float = 1.0,
               psd: bool = True, extra=None) -> LinearSolveInfo:
-        a, c = float(mass_coef), float(hess_coef)
-        if c <= 0.0 or a < 0.0:
-            raise ValueError(f"cholesky needs mass_coef >= 0 and hess_coef > 0 (got {a!r}, {c!r})")
+        a, c = self._coefficients(mass_coef, hess_coef)
         entry = self._setup(model)
         A = self.assemble(model, x, a, c, psd, extra)
         S = entry["solver"]

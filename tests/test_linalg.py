@@ -7,6 +7,7 @@ import pytest
 import scipy.linalg as sla
 
 from engine import linalg, mesh
+from engine.energies.base import stencil_triplets
 from engine.energies.bending import BendingEnergy
 from engine.energies.springs import SpringEnergy
 from engine.linalg import SolverError, make_solver
@@ -28,13 +29,31 @@ def spring_network(seed=0):
     return model, x
 
 
-def cloth(N=6, seed=1):
-    """An N x N cloth with area springs and dihedral bending, pinned at two corners, crumpled."""
+class PlainSprings(SpringEnergy):
+    """Springs declaring no fast product: PCG must take its generic matrix-free path."""
+    products = frozenset()
+
+
+class PlainBending(BendingEnergy):
+    """Bending declaring no rank-one factors."""
+    products = frozenset()
+
+
+class NoStencilSprings(SpringEnergy):
+    """Springs without a per-element block layout: Cholesky cannot assemble them."""
+    stencil_size = 0
+
+
+def cloth(N=6, seed=1, springs=SpringEnergy, bending=BendingEnergy):
+    """An N x N cloth with area springs and dihedral bending, pinned at two corners, crumpled
+    (``springs`` / ``bending``: the energy classes, None to leave one out)."""
     m3 = mesh.embed_3d(mesh.right_triangle_grid(N, N, 1.0, 1.0))
     X = m3.vertices
     model = Model(X, mass=mesh.lumped_masses(m3, 0.2), pinned=[0, N - 1], gravity=[0, 0, -9.81])
-    model.add_energy(SpringEnergy.from_rest(X, m3.edges, c=500.0 * mesh.edge_measure(m3)))
-    model.add_energy(BendingEnergy.from_mesh(m3, B=0.05))
+    if springs is not None:
+        model.add_energy(springs.from_rest(X, m3.edges, c=500.0 * mesh.edge_measure(m3)))
+    if bending is not None:
+        model.add_energy(bending.from_mesh(m3, B=0.05))
     rng = np.random.default_rng(seed)
     x = X + 0.03 * rng.standard_normal(X.shape)
     return model, x
@@ -56,10 +75,14 @@ SOLVER_VARIANTS = {
 }
 
 
+SCENES = {"springs": spring_network, "cloth": cloth, "bending": lambda: cloth(springs=None),
+          "cloth-plain": lambda: cloth(springs=PlainSprings, bending=PlainBending)}
+
+
 @pytest.mark.parametrize("variant", list(SOLVER_VARIANTS))
-@pytest.mark.parametrize("scene", ["springs", "cloth"])
+@pytest.mark.parametrize("scene", list(SCENES))
 def test_solvers_agree_with_dense_reference(scene, variant):
-    model, x = spring_network() if scene == "springs" else cloth()
+    model, x = SCENES[scene]()
     x_nd = vec3_ndarray(model.n, x)
     rng = np.random.default_rng(7)
     b = rng.standard_normal((model.n, 3))
@@ -166,6 +189,38 @@ def test_triplet_capacity_is_exact_formula():
     model, _ = cloth(5)
     springs, bending = model.energies
     assert linalg.triplet_capacity(model) == 3 * model.n + 21 * springs.m + 78 * bending.n_hinges
+    # (T1) 6k + 9k(k-1)/2 is the lower triangle of one k-vertex element's 3k x 3k Hessian
+    for k in range(1, 7):
+        assert stencil_triplets(k) == np.tril(np.ones((3 * k, 3 * k))).sum()
+    with pytest.raises(NotImplementedError, match="no per-element block layout"):
+        linalg.triplet_capacity(cloth(4, springs=NoStencilSprings)[0])
+
+
+def test_code_paths_follow_the_declared_products():
+    """The PCG fast path is taken for energies declaring "pair-gather" + "rank-one" and not for
+    the same energies declaring nothing; Cholesky only needs the stencil, so it is bitwise the
+    same for both."""
+    solver = linalg.PCGSolver(1e-10)
+    x_of = {}
+    ys = {}
+    for name, kw in (("declared", {}), ("plain", dict(springs=PlainSprings, bending=PlainBending))):
+        model, x = cloth(5, **kw)
+        x_nd = vec3_ndarray(model.n, x)
+        blocks = {}
+        linalg._hessian_plan(model, x_nd, True, None, blocks)
+        fused = solver._fused_setup(model, solver._work(model), x_nd, True, blocks)
+        assert (fused is not None) == (name == "declared")
+        b = vec3_ndarray(model.n, np.random.default_rng(3).standard_normal((model.n, 3)))
+        y = vec3_ndarray(model.n)
+        assert make_solver("cholesky", tol=1e-12).solve(model, x_nd, b, y, 1e3).converged
+        ys[name] = y.to_numpy()
+        x_of[name] = x
+    assert np.array_equal(x_of["declared"], x_of["plain"])
+    assert np.array_equal(ys["declared"], ys["plain"])
+    model, x = cloth(4, springs=NoStencilSprings)
+    with pytest.raises(NotImplementedError, match="use solver='pcg'"):
+        make_solver("cholesky").solve(model, vec3_ndarray(model.n, x), vec3_ndarray(model.n, x),
+                                      vec3_ndarray(model.n), 1e3)
 
 
 def test_zero_rhs_and_unknown_solver():
