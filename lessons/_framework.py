@@ -156,9 +156,9 @@ class Experiment:
     """One measured claim. ``compare``: 'rel' |m-t| <= tol |t|; 'abs' |m-t| <= tol;
     '<=' m <= t (t is a bound); '>=' m >= t.
 
-    ``id``: a slug unique within the lesson that names the experiment whatever the claim's text
-    (which may carry measured numbers or the integrator's name) and whatever options the run had;
-    results and tests find experiments by it."""
+    ``id`` (required, keyword): a slug unique within the lesson that names the experiment whatever
+    the claim's text (which may carry measured numbers or the integrator's name) and whatever
+    options the run had; results and tests find experiments by it."""
 
     claim: str
     theory: float
@@ -166,12 +166,12 @@ class Experiment:
     tolerance: float = 0.0
     compare: str = "rel"
     unit: str = ""
-    id: str = field(default="", kw_only=True)
+    id: str = field(kw_only=True)
 
     def __post_init__(self):
         if self.compare not in COMPARISONS:
             raise ValueError(f"compare must be one of {COMPARISONS}")
-        if self.id and not ID_PATTERN.fullmatch(self.id):
+        if not isinstance(self.id, str) or not ID_PATTERN.fullmatch(self.id):
             raise ValueError(f"experiment id must be a slug like 'pulse-speed-nu0.25' (got {self.id!r})")
         self.theory = float(self.theory)
         self.measured = float(self.measured)

@@ -103,7 +103,7 @@ def modal_tracks(rod, u0, v0, dt: float, method: str, steps: list[int], regions=
 
 
 def expect(ctx, method: str, claim: str, undamped: float, measured: float, predicted, tol: float,
-           compare: str = "rel", unit: str = "", *, id: str = "") -> Experiment:
+           compare: str = "rel", unit: str = "", *, id: str) -> Experiment:
     """A scene experiment: against the undamped theory when ``predicted`` is None (a symplectic
     method), else against the scheme's own prediction, the claim then naming the undamped value
     (the id is the same either way)."""

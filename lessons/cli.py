@@ -100,8 +100,8 @@ def _run_parser(lesson_ids: list[str], lesson=None) -> argparse.ArgumentParser:
                           "PATH is a directory that receives <id>.rrd for each lesson")
     rec.add_argument("--no-record", action="store_true", help="do not write a recording")
     p.add_argument("--results", metavar="PATH", default=None,
-                   help="also write every experiment as JSON (list of {lesson, stage, claim, theory, "
-                        "measured, tolerance, passed}) to PATH")
+                   help="also write every experiment as JSON (list of {lesson, stage, id, claim, theory, "
+                        "measured, tolerance, passed}; id: the experiment's stable name in its lesson) to PATH")
     p.add_argument("--threads", type=int, default=None, metavar="N",
                    help="CPU threads for Taichi (default: 2, or $ELASTIC_THREADS)")
     p.add_argument("--arch", default=None, metavar="NAME",

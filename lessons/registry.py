@@ -1,4 +1,4 @@
-"""Finds the lessons: every module in this package that defines ``LESSON``."""
+"""Finds the lessons: every package inside ``lessons`` (not starting with "_") that defines ``LESSON``."""
 from __future__ import annotations
 
 import importlib
@@ -11,7 +11,7 @@ from ._framework import Lesson
 def all_lessons() -> list[Lesson]:
     found = []
     for info in pkgutil.iter_modules(lessons.__path__):
-        if info.name.startswith("_") or info.name in ("registry", "cli"):
+        if not info.ispkg or info.name.startswith("_"):
             continue
         module = importlib.import_module(f"lessons.{info.name}")
         lesson = getattr(module, "LESSON", None)

@@ -11,7 +11,8 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 def run_stage(lesson, index, rec=None, stepping=None, used=None, **overrides):
-    """Run one stage of a lesson without printing; returns {claim: Experiment}.
+    """Run one stage of a lesson without printing; returns {id: Experiment} (the ids are checked
+    to be unique).
 
     ``stepping``: a lessons._framework.Stepping (or a dict of its fields, e.g.
     dict(integrator="backward-euler")); ``used``: a list that receives the stage's
@@ -25,11 +26,19 @@ def run_stage(lesson, index, rec=None, stepping=None, used=None, **overrides):
     experiments = lesson.stages[index - 1].run(ctx)
     if used is not None:
         used.extend(ctx.integrators_used)
-    return {e.claim: e for e in experiments}
+    by_id = {e.id: e for e in experiments}
+    assert len(by_id) == len(experiments), f"duplicate experiment ids: {[e.id for e in experiments]}"
+    return by_id
+
+
+def assert_unique_ids(stages):
+    """The experiment ids of a lesson's stages ({index: {id: Experiment}}) are unique across them."""
+    ids = [i for s in stages.values() for i in s]
+    assert len(ids) == len(set(ids)), sorted(i for i in set(ids) if ids.count(i) > 1)
 
 
 def assert_all_passed(experiments):
-    failed = [f"{e.claim}: theory {e.theory!r}, measured {e.measured!r}, {e.tolerance_text()}"
+    failed = [f"{e.id} ({e.claim}): theory {e.theory!r}, measured {e.measured!r}, {e.tolerance_text()}"
               for e in experiments.values() if not e.passed]
     assert not failed, "\n".join(failed)
 

@@ -20,7 +20,7 @@ from lessons._framework import validate_config
 from lessons._measure import be_damping_rate, central_gradient, damped_frequency
 from lessons.area_springs import LESSON, AreaSpringsConfig
 from lessons.area_springs.stages import bulk_tensor
-from tests.helpers import assert_all_passed, run_stage
+from tests.helpers import assert_all_passed, assert_unique_ids, run_stage
 
 
 @pytest.fixture(scope="module")
@@ -30,15 +30,19 @@ def stages():
 
 # ------------------------------------------------------------------------- the stages
 
+def test_experiment_ids_are_unique_in_the_lesson(stages, be_stages):
+    assert_unique_ids(stages)
+    assert_unique_ids({i: s for i, (s, _) in be_stages.items()})
+
+
 def test_stage1_constant_k_scales_as_one_over_h_volume_springs_do_not(stages):
     s = stages[1]
     assert_all_passed(s)
-    r2 = s["one k for all springs: speed ratio c(h/2)/c(h) = 2 (c ~ 1/h)"]
-    r4 = s["one k for all springs: speed ratio c(h/4)/c(h) = 4 (c ~ 1/h)"]
+    r2 = s["one-k-ratio-h2"]
+    r4 = s["one-k-ratio-h4"]
     assert r2.theory == 2.0 and abs(r2.measured / 2 - 1) < 2e-2
     assert r4.theory == 4.0 and abs(r4.measured / 4 - 1) < 2e-2
-    for key in ("volume-scaled springs: speed ratio c(h/2)/c(h) = 1",
-                "volume-scaled springs: speed ratio c(h/4)/c(h) = 1"):
+    for key in ("volume-scaled-ratio-h2", "volume-scaled-ratio-h4"):
         assert abs(s[key].measured - 1) < 1e-2
 
 
@@ -47,12 +51,11 @@ def test_stage2_equilateral_p_and_s_speeds(stages):
     assert_all_passed(s)
     cP, cS = math.sqrt(3 / 8), math.sqrt(1 / 8)  # E = rho = 1
     for axis in "xy":
-        p = s[f"P wave along {axis} (an edge direction) = sqrt(3/8) c0" if axis == "x"
-              else "P wave along y (across the edges) = sqrt(3/8) c0"]
+        p = s[f"p-wave-{axis}"]
         assert p.theory == pytest.approx(cP) and abs(p.measured / cP - 1) < 2e-2
-    sx = s["S wave along x = sqrt(mu/rho) = sqrt(1/8) c0"]
+    sx = s["s-wave-x"]
     assert sx.theory == pytest.approx(0.35355, abs=1e-5) and abs(sx.measured / cS - 1) < 2e-2
-    assert abs(s["c_P/c_S = sqrt(3), i.e. lambda = mu (Cauchy relation)"].measured / math.sqrt(3) - 1) < 1e-2
+    assert abs(s["p-over-s-sqrt3"].measured / math.sqrt(3) - 1) < 1e-2
 
 
 def test_stage3_patterns_are_anisotropic_and_predicted(stages):
@@ -61,40 +64,43 @@ def test_stage3_patterns_are_anisotropic_and_predicted(stages):
     expected = {"one-way": (0.6606, 0.7071, 0.4082), "alternating": (0.6455, 0.5774, 0.5774),
                 "crossed": (0.5774, 0.6455, 0.6455)}
     for pattern, (vx, vd, va) in expected.items():
-        for label, v in (("x", vx), ("diagonal (1,1)", vd), ("diagonal (1,-1)", va)):
-            e = s[f"{pattern} grid: P wave along {label} = Cauchy-Born ({v:.4f} c0)"]
+        for label, v in (("x", vx), ("diagonal-plus", vd), ("diagonal-minus", va)):
+            e = s[f"{pattern}-p-wave-{label}"]
             assert e.theory == pytest.approx(v, abs=1e-4)
             assert abs(e.measured / e.theory - 1) < 2e-2
-    assert s["one-way grid is anisotropic: speed along / across its diagonals"].measured > 1.7
+    assert s["one-way-anisotropic"].measured > 1.7
 
 
 def test_stage3_jitter_the_affine_sum_is_an_upper_bound(stages):
     s = stages[3]
-    bound = s["jitter 0.25: the affine Cauchy-Born sum is an upper bound (max measured/sum)"]
+    bound = s["jitter-affine-sum-upper-bound"]
+    assert bound.claim.startswith("jitter 0.25:")
     assert bound.measured < 0.99  # strong jitter: a few per cent softer than the affine sum
     for seed in range(3):
         for axis in "xy":
-            e = s[f"jitter 0.25 (seed {seed}): P along {axis} = relaxed-network prediction"]
+            e = s[f"jitter-seed{seed}-p-wave-{axis}"]
+            assert e.claim.startswith(f"jitter 0.25 (seed {seed}):")
             assert abs(e.measured / e.theory - 1) < 2e-2
-    mild = s["mild jitter 0.1: P along x = Cauchy-Born sum over its springs"]
+    mild = s["mild-jitter-p-wave-x"]
+    assert mild.claim.startswith("mild jitter 0.1:")
     assert abs(mild.measured / mild.theory - 1) < 2e-2
 
 
 def test_stage4_tet_box(stages):
     s = stages[4]
     assert_all_passed(s)
-    e = s["tet box, h: P along (1,1,1) = Cauchy-Born sqrt(10/27) c0"]
+    e = s["box-p-wave-111"]
     assert e.theory == pytest.approx(math.sqrt(10 / 27))
-    assert abs(s["refinement leaves the (1,1,1) speed unchanged: c(h/2)/c(h)"].measured - 1) < 1e-2
+    assert abs(s["box-refinement-keeps-speed"].measured - 1) < 1e-2
 
 
 def test_stage5_static_stretch(stages):
     s = stages[5]
     assert_all_passed(s)
-    nu = s["equilateral sheet: Poisson's ratio = 1/3"]
-    E = s["equilateral sheet: Young's modulus E_eff = E/3"]
+    nu = s["equilateral-poisson-ratio"]
+    E = s["equilateral-young-modulus"]
     assert abs(nu.measured * 3 - 1) < 2e-2 and abs(E.measured * 3 - 1) < 2e-2
-    alt = s["alternating grid, pulled along x: Poisson's ratio (Cauchy-Born, 1/5)"]
+    alt = s["alternating-poisson-ratio"]
     assert alt.theory == pytest.approx(0.2) and abs(alt.measured / 0.2 - 1) < 2e-2
 
 
@@ -205,13 +211,14 @@ def test_a_too_short_wavelength_fails_honestly():
     """Eight cells per wavelength is far from the long-wavelength limit: the lattice is
     dispersive, and the claims must then fail rather than be hidden."""
     s = run_stage(LESSON, 4, box_wavelength=8)
-    e = s["tet box, h: P along (1,1,1) = Cauchy-Born sqrt(10/27) c0"]
+    e = s["box-p-wave-111"]
     assert not e.passed and e.measured < e.theory
 
 
 # ------------------------------------------------------------ stepping options (--integrator)
 
 BE_PCG = "backward-euler (pcg, tol 1e-08)"
+WHERE = {1: "refinement", 2: "equilateral", 3: "patterns", 4: "tet-box"}  # id prefix of each stage's BE checks
 DAMPING = "backward Euler damps each wave by 1/sqrt(1 + (W dt)^2) per step: fitted / scheme's decay rate"
 PHASE = "backward Euler's phase lag 1 - arctan(W dt)/(W dt) at the chosen dt"
 
@@ -235,19 +242,20 @@ def test_backward_euler_wave_stages_pass_as_scene_runs(be_stages, stage, runs):
     s, used = be_stages[stage]
     assert_all_passed(s)
     assert len(used) == runs and all(u.split(": ", 1)[1] == BE_PCG for u in used)  # scene runs, none [fixed]
-    damping = next(e for claim, e in s.items() if claim.startswith(DAMPING))
-    assert abs(damping.measured - 1) < 3e-2
-    phase = next(e for claim, e in s.items() if claim.startswith(PHASE))
+    damping = s[f"{WHERE[stage]}-backward-euler-damping"]
+    assert damping.claim.startswith(DAMPING) and abs(damping.measured - 1) < 3e-2
+    phase = s[f"{WHERE[stage]}-backward-euler-phase-lag"]
+    assert phase.claim.startswith(PHASE)
     assert 7e-4 < phase.measured <= 1e-3  # w dt = 0.05: 1 - arctan(0.05)/0.05 = 8.3e-4
 
 
 def test_backward_euler_keeps_the_continuum_speeds_and_ratios(be_stages):
     s1 = be_stages[1][0]
-    assert abs(s1["one k for all springs: speed ratio c(h/4)/c(h) = 4 (c ~ 1/h)"].measured / 4 - 1) < 2e-2
-    assert abs(s1["volume-scaled springs: speed ratio c(h/4)/c(h) = 1"].measured - 1) < 1e-2
+    assert abs(s1["one-k-ratio-h4"].measured / 4 - 1) < 2e-2
+    assert abs(s1["volume-scaled-ratio-h4"].measured - 1) < 1e-2
     s2 = be_stages[2][0]
-    assert abs(s2["P wave along x (an edge direction) = sqrt(3/8) c0"].measured / math.sqrt(3 / 8) - 1) < 2e-2
-    assert abs(s2["S wave along x = sqrt(mu/rho) = sqrt(1/8) c0"].measured / math.sqrt(1 / 8) - 1) < 2e-2
+    assert abs(s2["p-wave-x"].measured / math.sqrt(3 / 8) - 1) < 2e-2
+    assert abs(s2["s-wave-x"].measured / math.sqrt(1 / 8) - 1) < 2e-2
 
 
 @pytest.mark.parametrize("stage, kw", [(2, {}), (4, dict(box_wavelength=16))])
@@ -256,7 +264,7 @@ def test_symplectic_euler_override_passes_the_wave_stages(stage, kw):
     s = run_stage(LESSON, stage, stepping=dict(integrator="symplectic-euler"), used=used, **kw)
     assert_all_passed(s)
     assert used and all(u.split(": ", 1)[1] == "symplectic-euler" for u in used)
-    assert not any(claim.startswith(DAMPING) for claim in s)
+    assert not any(e.claim.startswith(DAMPING) or i.endswith("backward-euler-damping") for i, e in s.items())
 
 
 def test_damped_frequency_recovers_backward_eulers_own_decay():

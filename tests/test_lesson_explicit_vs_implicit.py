@@ -13,7 +13,7 @@ from engine.recorder import Recorder, summarize
 from lessons._framework import validate_config
 from lessons.explicit_vs_implicit import LESSON, ExplicitImplicitConfig
 from lessons.explicit_vs_implicit.stages import _crossover, symplectic_euler_growth
-from tests.helpers import assert_all_passed, run_stage
+from tests.helpers import assert_all_passed, assert_unique_ids, run_stage
 
 
 @pytest.fixture(scope="module")
@@ -33,45 +33,46 @@ def stages(recording):
     return recording[0]
 
 
-def find(stage, start):
-    """The experiment whose claim starts with ``start`` (claims carry measured numbers)."""
-    hits = [e for claim, e in stage.items() if claim.startswith(start)]
-    assert len(hits) == 1, (start, list(stage))
-    return hits[0]
+def test_experiment_ids_are_unique_in_the_lesson(stages):
+    assert_unique_ids(stages)
 
 
 def test_stage1_cfl_limit_and_blow_up(stages):
     s = stages[1]
     assert_all_passed(s)
-    power = find(s, "power iteration's w_max^2 equals the dense eigenvalue")
+    power = s["power-iteration-w-max"]
     assert abs(power.measured / power.theory - 1) < 1e-4
-    gersh = find(s, "Gershgorin's dt is safe")
+    gersh = s["gershgorin-dt-safe"]
     assert 0.8 < gersh.measured / gersh.theory <= 1.0  # safe, and tight on this grid
-    survive = find(s, "symplectic Euler at 0.9 x the limit survives")
+    survive = s["symplectic-below-survives"]
+    assert survive.claim.startswith("symplectic Euler at 0.9 x the limit survives")
     assert survive.measured == survive.theory > 1000
-    blow = find(s, "symplectic Euler at 1.1 x the limit blows up")
+    blow = s["symplectic-above-blows-up"]
+    assert blow.claim.startswith("symplectic Euler at 1.1 x the limit blows up")
     assert 3 <= blow.measured <= 50  # caught within tens of steps of the release
-    assert s["the blow-up message names the CFL limit"].measured == 1.0
-    growth = find(s, "the seed grows as the modes' step matrices predict")
+    assert s["blow-up-message-names-cfl"].measured == 1.0
+    growth = s["seed-growth-modal"]
     assert growth.theory > 1e3 and abs(growth.measured / growth.theory - 1) < 1e-2
 
 
 def test_stage1_backward_euler_far_above_the_limit(stages):
     s = stages[1]
-    for factor in ("10", "100"):
-        energy = find(s, f"backward Euler at {factor} x the limit: total energy never exceeds the start")
+    for which, factor in (("big", "10"), ("huge", "100")):
+        energy = s[f"backward-euler-{which}-energy-bounded"]
+        assert energy.claim.startswith(f"backward Euler at {factor} x the limit: total energy never exceeds the start")
         assert energy.measured < energy.theory
-        eq = find(s, f"backward Euler at {factor} x: reaches the hanging equilibrium")
+        eq = s[f"backward-euler-{which}-reaches-equilibrium"]
+        assert eq.claim.startswith(f"backward Euler at {factor} x: reaches the hanging equilibrium")
         assert eq.measured < 1e-3
-    assert find(s, "backward Euler at 100 x: reaches").measured < 1e-6  # damped out completely
-    assert find(s, "every Newton iteration lowered the incremental potential").measured == 0
-    assert s["every linear solve reached its tolerance (largest relative residual)"].measured <= 1e-8
-    assert s["pinned corners never moved (max displacement over all runs)"].measured == 0.0
+    assert s["backward-euler-huge-reaches-equilibrium"].measured < 1e-6  # damped out completely
+    assert s["newton-steps-sound"].measured == 0
+    assert s["linear-solves-converged"].measured <= 1e-8
+    assert s["pins-never-moved"].measured == 0.0
 
 
 @pytest.mark.parametrize("wdt", [0.1, 1.0, 0.3, 3.0, 30.0])
 def test_stage2_damping_factor(stages, wdt):
-    e = stages[2][f"backward Euler: energy factor per step of a mode at w dt = {wdt:g} is 1/(1 + w^2 dt^2)"]
+    e = stages[2][f"damping-wdt{wdt:g}"]
     assert e.theory == pytest.approx(1.0 / (1.0 + wdt * wdt), rel=1e-14)
     assert abs(e.measured / e.theory - 1) < 1e-5
 
@@ -79,23 +80,23 @@ def test_stage2_damping_factor(stages, wdt):
 def test_stage2_orders(stages):
     s = stages[2]
     assert_all_passed(s)
-    assert abs(find(s, "backward Euler converges at first order").measured - 1) < 0.1
-    assert abs(find(s, "symplectic Euler (from rest under gravity) converges at first order").measured - 1) < 0.05
-    assert abs(s["velocity Verlet converges at second order"].measured - 2) < 0.1
-    assert find(s, "symplectic Euler started from v0 - dt a(x0)/2 has Verlet's positions").measured < 1e-6
-    ref = find(s, "the reference's Verlet run has 1/64")
+    assert abs(s["backward-euler-first-order"].measured - 1) < 0.1
+    assert abs(s["symplectic-euler-first-order"].measured - 1) < 0.05
+    assert abs(s["velocity-verlet-second-order"].measured - 2) < 0.1
+    assert s["half-step-start-is-verlet"].measured < 1e-6
+    ref = s["reference-error-one-64th"]
     assert abs(ref.measured * 64 - 1) < 0.05
 
 
 def test_stage3_counts(stages):
     s = stages[3]
     assert_all_passed(s)
-    assert find(s, "every timed run stayed bounded").measured == 0
-    assert abs(find(s, "explicit steps per simulated second grow like E^(1/2)").measured - 0.5) < 0.01
-    assert find(s, "backward Euler keeps dt").measured <= 0.0
-    grow = s["PCG iterations per step grow with E (stiffest / softest)"]
+    assert s["timed-runs-bounded"].measured == 0
+    assert abs(s["explicit-steps-grow-like-sqrt-e"].measured - 0.5) < 0.01
+    assert s["backward-euler-energy-bounded-at-every-e"].measured <= 0.0
+    grow = s["pcg-iterations-grow"]
     assert grow.measured > 2.0
-    slope = find(s, "PCG iterations per step grow no faster than sqrt(1 + w_max^2 dt^2)")
+    slope = s["pcg-iterations-below-condition-bound"]
     assert 0.0 < slope.measured < slope.theory and slope.theory == pytest.approx(0.5, abs=0.02)
 
 
@@ -119,11 +120,10 @@ def test_stepping_options_do_not_change_fixed_runs():
     assert sum(": symplectic-euler [fixed]" in n for n in used) == 3
     assert sum("backward-euler (pcg, tol 1e-08) [fixed]" in n for n in used) == 3
     default = run_stage(LESSON, 3, **small)
-    assert set(s) == set(default)
+    assert set(s) == set(default) and all(s[k].claim == default[k].claim for k in s)
     # the same runs: the same counts (up to the round-off of two-thread reductions)
-    for claim in ("explicit steps per simulated second", "PCG iterations per step grow with E"):
-        e = find(s, claim)
-        assert e.measured == pytest.approx(find(default, claim).measured, rel=1e-6)
+    for key in ("explicit-steps-grow-like-sqrt-e", "pcg-iterations-grow"):
+        assert s[key].measured == pytest.approx(default[key].measured, rel=1e-6)
 
 
 def test_recording_has_meshes_energies_blow_up_marks_and_timings(recording):

@@ -1,5 +1,5 @@
 """Lesson springs (every experiment, key figures asserted) and the fused spring kernel
-(engine/integrators/fused.py) against the step-by-step explicit integrators.
+(engine.integrators.explicit.run_many_steps) against the step-by-step explicit integrators.
 
 The bad-input cases of the issue (zero/negative rest length, coincident endpoints, k <= 0,
 edge or pin index out of range) are covered by tests/test_springs_engine.py.
@@ -11,12 +11,14 @@ import pytest
 
 from engine import diagnostics, errors, integrators
 from engine.energies.bending import BendingEnergy
+from engine.errors import BlowUpError
 from engine.integrators import explicit
-from engine.integrators.fused import run_fused
+from engine.stability import stable_dt_estimate
+from engine.integrators.explicit import run_many_steps as run_fused
 from engine.model import Model
 from lessons._framework import validate_config
 from lessons.springs import LESSON, SpringsConfig
-from tests.helpers import assert_all_passed, run_stage
+from tests.helpers import assert_all_passed, assert_unique_ids, run_stage
 
 METHODS = ["forward-euler", "symplectic-euler", "velocity-verlet"]
 
@@ -44,7 +46,7 @@ CASES = {"free": dict(), "gravity_and_pins": dict(gravity=(0.0, -9.81, 0.0), pin
 @pytest.mark.parametrize("method", METHODS)
 def test_one_fused_step_equals_one_explicit_step(method, case):
     model, x0, v0 = _network(**CASES[case])
-    dt = 0.2 * explicit.stable_dt_estimate(model)
+    dt = 0.2 * stable_dt_estimate(model)
     a, b = model.make_state(x0, v0), model.make_state(x0, v0)
     K, W = run_fused(model, a, dt, 1, method)
     integrators.get(method).step(model, b, dt, 1)
@@ -63,7 +65,7 @@ def test_one_fused_step_equals_one_explicit_step(method, case):
 @pytest.mark.parametrize("method", METHODS)
 def test_fused_energies_of_every_step_match_the_engine(method, case):
     model, x0, v0 = _network(**CASES[case], seed=1)
-    dt = 0.2 * explicit.stable_dt_estimate(model)
+    dt = 0.2 * stable_dt_estimate(model)
     a, b = model.make_state(x0, v0), model.make_state(x0, v0)
     K, W = run_fused(model, a, dt, 50, method)
     integ = integrators.get(method)
@@ -79,7 +81,7 @@ def test_fused_energies_of_every_step_match_the_engine(method, case):
 @pytest.mark.parametrize("method", METHODS)
 def test_chunked_fused_runs_equal_one_long_run(method):
     model, x0, v0 = _network(**CASES["gravity_and_pins"])
-    dt = 0.2 * explicit.stable_dt_estimate(model)
+    dt = 0.2 * stable_dt_estimate(model)
     a, b = model.make_state(x0, v0), model.make_state(x0, v0)
     K1, W1 = run_fused(model, a, dt, 300, method)
     parts = [run_fused(model, b, dt, 100, method) for _ in range(3)]
@@ -90,12 +92,12 @@ def test_chunked_fused_runs_equal_one_long_run(method):
 
 def test_fused_blow_up_is_detected_at_the_same_step_as_the_explicit_runner():
     model, x0, v0 = _network()
-    dt = 1.5 * explicit.stable_dt_estimate(model, method="power")  # above the CFL limit
+    dt = 1.5 * stable_dt_estimate(model, method="power")  # above the CFL limit
     a, b = model.make_state(x0, v0), model.make_state(x0, v0)
     E0 = diagnostics.total_energy(model, a)
-    with pytest.raises(explicit.BlowUpError) as fused_info:
+    with pytest.raises(BlowUpError) as fused_info:
         run_fused(model, a, dt, 10_000, "symplectic-euler", energy_bound=100 * E0, step_offset=7)
-    with pytest.raises(explicit.BlowUpError) as ref_info:
+    with pytest.raises(BlowUpError) as ref_info:
         explicit.run(model, b, dt, 10_000, "symplectic-euler", energy_bound=100 * E0)
     exc = fused_info.value
     assert isinstance(exc, errors.BlowUpError)
@@ -112,11 +114,11 @@ def test_fused_forward_euler_grows_and_non_finite_energy_is_caught_without_a_bou
     model, x0, v0 = _network()
     st = model.make_state(x0, v0)
     E0 = diagnostics.total_energy(model, st)
-    K, W = run_fused(model, st, 0.3 * explicit.stable_dt_estimate(model), 500, "forward-euler")
+    K, W = run_fused(model, st, 0.3 * stable_dt_estimate(model), 500, "forward-euler")
     assert (K + W)[-1] > 10 * E0
     st = model.make_state(x0, v0)
     with pytest.raises(errors.BlowUpError) as info:
-        run_fused(model, st, 100 * explicit.stable_dt_estimate(model), 10_000, "symplectic-euler")
+        run_fused(model, st, 100 * stable_dt_estimate(model), 10_000, "symplectic-euler")
     assert not math.isfinite(info.value.energy) and info.value.step < 10_000
 
 
@@ -165,6 +167,11 @@ def test_lesson_is_registered():
     assert registry.get("springs") is LESSON and LESSON.order == 2
 
 
+def test_experiment_ids_are_unique_in_the_lesson(stages, backward):
+    assert_unique_ids({i: stages[i] for i in range(1, len(LESSON.stages) + 1)})
+    assert_unique_ids({i: s for i, (s, _) in backward.items()})
+
+
 def test_config_ranges_are_checked():
     from engine.errors import ParameterError
     validate_config(SpringsConfig())
@@ -176,33 +183,36 @@ def test_config_ranges_are_checked():
 def test_stage1_one_spring(stages):
     s = stages[1]
     assert_all_passed(s)
-    assert s["force equals -dW/dx_i by central differences (rel. error, eps = 1e-6)"].measured < 1e-7
-    assert s["directional derivative g'(0) = grad W . q for random q (rel. error)"].measured < 1e-7
-    assert s["no force at the rest length (max |f| / k)"].measured < 1e-14
-    assert s["force is parallel to the spring: |f x d| / (|f||d|) = sin(angle)"].measured < 1e-14
-    assert s["energy unchanged by a rigid rotation + translation (rel. change)"].measured < 1e-12
-    assert s["engine force equals the closed form -k (l/L - 1)(x_i - x_j)/l (rel. error)"].measured < 1e-13
+    assert s["force-is-energy-gradient"].measured < 1e-7
+    assert s["directional-derivative"].measured < 1e-7
+    assert s["no-force-at-rest"].measured < 1e-14
+    assert s["force-along-spring"].measured < 1e-14
+    assert s["rigid-motion-energy"].measured < 1e-12
+    assert s["closed-form-force"].measured < 1e-13
 
 
 def test_stage2_conservation(stages):
     s = stages[2]
     assert_all_passed(s)
     for method in METHODS:
-        assert s[f"fused kernel = engine's {method} step by step (100 steps, max rel. diff.)"].measured < 1e-12
+        assert s[f"fused-equals-stepwise-{method}"].measured < 1e-12
     for net, what in (("chain", "peak kinetic energy"), ("frame", "initial energy")):
         for method, ratio in (("symplectic-euler", 2.0), ("velocity-verlet", 4.0)):
-            drift = s[f"{net}, {method}: no drift over 100000 steps (|mean E last tenth - first tenth| / {what})"]
+            drift = s[f"{net}-{method}-no-drift"]
+            assert drift.claim.endswith(f"over 100000 steps (|mean E last tenth - first tenth| / {what})")
             assert drift.measured < 0.01
-            r = s[f"{net}, {method}: energy wobble ratio at dt vs dt/2 = 2^order"]
+            r = s[f"{net}-{method}-wobble-order"]
             assert r.theory == ratio and abs(r.measured / ratio - 1) < 0.05
     for method in ("symplectic-euler", "velocity-verlet"):
-        assert s[f"frame, {method}: linear momentum conserved (max |P - P0| / max sum m|v|)"].measured < 1e-12
-        assert s[f"frame, {method}: angular momentum conserved (max |J - J0| / max sum m|x||v|)"].measured < 1e-12
-    fe = s["chain, forward Euler: energy grows by one peak kinetic energy within 100000 steps (step detected)"]
+        assert s[f"frame-{method}-linear-momentum"].measured < 1e-12
+        assert s[f"frame-{method}-angular-momentum"].measured < 1e-12
+    fe = s["chain-forward-euler-blows-up"]
+    assert "within 100000 steps" in fe.claim
     assert fe.measured < 100000
-    growth = s["frame, forward Euler: energy growth over n steps = sum_k E_k (1 + w_k^2 dt^2)^n / E0"]
+    growth = s["frame-forward-euler-growth"]
     assert growth.measured > 10 and abs(growth.measured / growth.theory - 1) < 1e-3
-    step = s["frame, forward Euler: blow-up (E > 10 E0) detected at the step modal theory predicts"]
+    step = s["frame-forward-euler-detected-step"]
+    assert "blow-up (E > 10 E0)" in step.claim
     assert abs(step.measured - step.theory) <= 1
 
 
@@ -210,13 +220,13 @@ def test_stage3_variational_derivative(stages):
     s = stages[3]
     assert_all_passed(s)
     for kind in ("graded", "random"):
-        e = s[f"{kind} grid: -grad W = nodal length x FD stencil of d/dp(E(x'-1)) (max rel. diff.)"]
+        e = s[f"{kind}-gradient-is-stencil"]
         assert e.measured < 1e-13
     for kind in ("uniform", "graded"):
-        o = s[f"{kind} grid: force density -> d/dp(E(x'-1)), order of the rms error"]
+        o = s[f"{kind}-force-density-order"]
         assert 1.9 <= o.measured <= 2.1
-    assert 1.9 <= s["graded grid: order of the max error"].measured <= 2.1
-    o = s["random grid: force density -> d/dp(E(x'-1)), order of the rms error"]
+    assert 1.9 <= s["graded-force-density-max-order"].measured <= 2.1
+    o = s["random-force-density-order"]
     assert o.theory == 1.0 and 0.85 <= o.measured <= 1.15
 
 
@@ -225,22 +235,22 @@ def test_stage4_stiffness_from_the_speed_of_sound(stages):
     assert_all_passed(s)
     c = math.sqrt(100.0 / 1.0)
     for kind in ("uniform", "alternating", "graded"):
-        e = next(v for k, v in s.items() if k.startswith(f"k_j = rho c^2 ({kind} lengths"))
+        e = s[f"matched-{kind}-speed"]
         assert e.theory == pytest.approx(c) and abs(e.measured / c - 1) < 0.01
-    assert s["k_j = rho c^2: spread of the three speeds (max - min) / c"].measured < 0.01
-    alt = s["one Hooke constant kappa (alternating lengths): speed = sqrt(kappa L_mean / rho)"]
+    assert s["matched-speed-spread"].measured < 0.01
+    alt = s["constant-kappa-alternating-speed"]
     assert alt.theory == pytest.approx(c * math.sqrt(1.5), rel=1e-3)  # L_mean = 1.5 h
     assert abs(alt.measured / alt.theory - 1) < 0.01
-    assert s["one Hooke constant: the two patterns' speeds differ by more than 1% (rel. diff.)"].measured > 0.01
+    assert s["constant-kappa-patterns-differ"].measured > 0.01
 
 
 def test_stage5_hanging_rod(stages):
     s = stages[5]
     assert_all_passed(s)
     for kind in ("uniform", "graded"):
-        assert s[f"{kind} grid: static solver converged (net-force residual <= tol)"].measured <= 1e-10
-        assert s[f"{kind} grid: nodal displacement = (rho g/E)(L p - p^2/2) (max rel. error)"].measured < 1e-9
-        r = s[f"{kind} grid: pin reaction carries the whole weight rho g L"]
+        assert s[f"hanging-{kind}-converged"].measured <= 1e-10
+        assert s[f"hanging-{kind}-displacement"].measured < 1e-9
+        r = s[f"hanging-{kind}-pin-reaction"]
         assert r.theory == pytest.approx(9.81) and r.measured == pytest.approx(9.81, rel=1e-8)
 
 
@@ -274,6 +284,7 @@ def test_backward_euler_scene_runs_use_it_and_fixed_runs_keep_theirs(backward, s
     assert "chain_velocity-verlet: velocity-verlet [fixed]" in fixed
     assert not any("backward" in u for u in fixed)
     assert {k: e.measured for k, e in stages[2].items()} == {k: e.measured for k, e in backward[2][0].items()}
+    assert {k: e.claim for k, e in stages[2].items()} == {k: e.claim for k, e in backward[2][0].items()}
     scene = backward[4][1]
     assert {u.split(": ")[0] for u in scene} == {"matched_uniform", "matched_alternating", "matched_graded",
                                                  "constant_kappa_uniform", "constant_kappa_alternating"}
@@ -284,10 +295,11 @@ def test_backward_euler_speeds_are_its_modal_prediction(backward):
     s = backward[4][0]
     c = 10.0
     for kind in ("uniform", "alternating", "graded"):
-        e = next(v for k, v in s.items() if k.startswith(f"k_j = rho c^2 ({kind} lengths") and "backward-euler" in k)
+        e = s[f"matched-{kind}-speed"]
+        assert e.claim.startswith(f"k_j = rho c^2 ({kind} lengths") and "backward-euler's modal prediction" in e.claim
         # slowed a little (phase atan(w dt) < w dt), much less than the 1% tolerance
         assert 0.998 * c < e.theory < c and abs(e.measured / e.theory - 1) < 1e-5
-    alt = next(v for k, v in s.items() if k.startswith("one Hooke constant kappa (alternating"))
+    alt = s["constant-kappa-alternating-speed"]
     assert alt.theory == pytest.approx(c * math.sqrt(1.5), rel=2e-3) and alt.theory < c * math.sqrt(1.5)
 
 
@@ -298,6 +310,7 @@ def test_velocity_verlet_pulses_meet_the_undamped_theory():
     assert len(used) == 5 and all(u.endswith(": velocity-verlet") for u in used), used
     default = run_stage(LESSON, 4, **SMALL)
     assert set(s) == set(default) and all(s[k].theory == default[k].theory for k in s)
+    assert all(s[k].claim == default[k].claim for k in s)
 
 
 def test_backward_euler_with_cholesky_on_one_chain():
