@@ -16,7 +16,7 @@ from bench.variants import bending_variant, spring_variant
 from engine.energies.bending import gather_hinge_vectors_kernel, hinge_forces_kernel
 from engine.integrators import get as integrator
 from engine.integrators import kernels as step_kernels
-from engine.model import float_dtype, zero_vec3
+from engine.fields import float_dtype, scratch_vec3, zero_vec3
 
 SIZES = config.sizes("cloth")
 DT = 1e-5  # below the stable dt of every cloth here (E = 1e3): timing only, the cost does not depend on dt
@@ -73,7 +73,7 @@ def test_force_kernels(benchmark, side, kernel):
     x0, v0 = config.cloth_start_state(c)
     st = c.model.make_state(x0, v0)
     m = c.model
-    f = m.work_vec3("bench_f")
+    f = scratch_vec3(m, "bench_f")
     sp, be = c.springs, c.bending
     if kernel == "zero":
         call = lambda: zero_vec3(f)  # noqa: E731
@@ -84,9 +84,9 @@ def test_force_kernels(benchmark, side, kernel):
         add = bending_variant(kernel.split("_")[1])
         call = lambda: add(st.x, be, f)  # noqa: E731
     elif kernel == "hinge_pass1":
-        call = lambda: hinge_forces_kernel(st.x, *be._args(), be._per_hinge_vec)  # noqa: E731
+        call = lambda: hinge_forces_kernel(st.x, *be.hinge_args(), be.per_hinge_vec)  # noqa: E731
     elif kernel == "hinge_gather":
-        call = lambda: gather_hinge_vectors_kernel(be._per_hinge_vec, be._offsets, be._entries, f)  # noqa: E731
+        call = lambda: gather_hinge_vectors_kernel(be.per_hinge_vec, be.offsets, be.entries, f)  # noqa: E731
     else:  # update (dt = 0: the state stays put)
         zero_vec3(f)
         call = lambda: step_kernels.update_kernel(st.x, st.v, f, f, m.inv_mass_nd, m.gravity_vec, 0.0,  # noqa: E731

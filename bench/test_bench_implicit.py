@@ -14,7 +14,7 @@ from bench import config, traffic
 from bench.baseline import NumpyCloth
 from bench.timing import measure, sync
 from engine import runtime
-from engine.model import float_dtype
+from engine.fields import float_dtype
 
 SIZES = config.sizes("implicit")
 DT = config.IMPLICIT_DT

@@ -11,7 +11,7 @@ from bench.baseline import NumpyRod
 from bench.timing import measure, sync
 from engine import runtime
 from engine.constants import CFL_SAFETY
-from engine.model import float_dtype
+from engine.fields import float_dtype
 
 SIZES = config.sizes("rod")
 

@@ -22,7 +22,7 @@ from bench.variants import VARIANTS, bending_variant, spring_variant, stream_cop
 from engine.constants import CFL_SAFETY, G
 from engine.integrators import BackwardEuler
 from engine.integrators import get as integrator
-from engine.model import vec3_ndarray
+from engine.fields import vec3_ndarray
 from engine.scenes import cloth
 
 

@@ -21,7 +21,7 @@ import taichi as ti
 
 from engine.energies.bending import _energy_terms, _frame, _theta, _theta_grad
 from engine.energies.springs import edge_array
-from engine.model import scalar_array, vec3_array
+from engine.fields import scalar_array, vec3_array
 
 hinge_array = ti.types.ndarray(dtype=ti.i32, ndim=2)
 f64_array = ti.types.ndarray(dtype=ti.f64, ndim=1)
@@ -98,9 +98,9 @@ def spring_variant(name: str):
 def bending_variant(name: str):
     """``(x, bending, f) -> None`` adding the bending forces to f with the named variant."""
     if name == "atomic":
-        return lambda x, be, f: hinge_forces_atomic(x, *be._args(), f)
+        return lambda x, be, f: hinge_forces_atomic(x, *be.hinge_args(), f)
     if name == "serial":
-        return lambda x, be, f: hinge_forces_serial(x, *be._args(), f)
+        return lambda x, be, f: hinge_forces_serial(x, *be.hinge_args(), f)
     if name == "gather":
         return lambda x, be, f: be.add_forces(x, f)
     raise ValueError(f"unknown bending variant {name!r}")

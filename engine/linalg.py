@@ -90,7 +90,7 @@ import taichi as ti
 from engine.assembly import assemble_energy, assemble_mass, triplet_capacity
 from engine.constants import SERIAL_BELOW
 from engine.fields import (axpy_inplace, float_dtype, free_dot, int_array, int_array2, mat3_array, scalar_array,
-                           vec3_array, vec3_array2, vec3_ndarray, zero_pinned, zero_vec3)
+                           scratch_vec3, vec3_array, vec3_array2, vec3_ndarray, zero_pinned, zero_vec3)
 from engine.model import Model
 
 __all__ = ["SolverError", "LinearSolveInfo", "LinearSolver", "PCGSolver", "CholeskySolver", "SOLVERS",
@@ -356,7 +356,7 @@ def _hessian_plan(model: Model, x, psd: bool = True, extra=None, blocks: dict | 
     plan = []
     if extra is not None and extra[0] != 0.0:
         s, x2 = float(extra[0]), extra[1]
-        t = model.work_vec3("linalg_extra")
+        t = scratch_vec3(model, "linalg_extra")
 
         def add_extra(p, q):
             zero_vec3(t)

@@ -245,11 +245,6 @@ class Model:
         object.__setattr__(self, "_frozen", True)  # built: energies, masses and pins are fixed from here on
         return State.from_numpy(x, v, t)
 
-    def work_vec3(self, name: str):
-        """TEMPORARY alias of :func:`engine.fields.scratch_vec3` (scratch is not kept on the model)."""
-        from engine.fields import scratch_vec3
-        return scratch_vec3(self, name)
-
     # -- energies and forces -----------------------------------------------------------------
     def elastic_energy(self, x) -> float:
         return float(sum(e.energy(x) for e in self.energies))

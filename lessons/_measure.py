@@ -7,7 +7,6 @@ simulation or writes to the recording.
 """
 from __future__ import annotations
 
-import math
 
 import numpy as np
 
@@ -133,13 +132,6 @@ def damped_frequency(t: np.ndarray, a: np.ndarray) -> tuple[float, float]:
 
     sol = least_squares(resid, [w0, 0.0], x_scale=[w0, w0], xtol=1e-14, ftol=1e-14, gtol=1e-14)
     return float(sol.x[0]), float(sol.x[1])
-
-
-def be_damping_rate(w: float, dt: float) -> float:
-    """Backward Euler on an oscillator whose scheme frequency is w (phase arctan(W dt) = w dt per
-    step, W the true frequency): amplitude factor 1/sqrt(1 + (W dt)^2) = cos(w dt) per step, i.e.
-    the decay rate -ln(cos(w dt))/dt."""
-    return -math.log(math.cos(w * dt)) / dt
 
 
 # ---------------------------------------------------------------------------- strains

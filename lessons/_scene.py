@@ -6,15 +6,13 @@ recorded and checked the same way.
 """
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
-from engine import diagnostics
-from engine.constants import CFL_SAFETY
-from engine.linalg import SolverError
-from engine import errors
-from engine.integrators.explicit import BlowUpError, _blowup_message, stable_dt_estimate
+from engine.errors import BlowUpError
+from engine.integrators.explicit import run_many_steps
+from engine.integrators.monitor import Monitor
+from engine.integrators.run import model_stepper, run
+from engine.stability import stable_dt_estimate, substeps_for
 
 from ._framework import check_interrupt
 
@@ -39,77 +37,59 @@ def simulate(ctx, name: str, model, state, dt: float, n_steps: int, integrator="
     geometry (if recording) and ``observe(step, state)`` is called (for measurements). Returns
     (steps, kinetic, potential) arrays at the energy samples.
     """
-    rec = ctx.rec
     every = int(every or getattr(ctx.cfg, "record_every", 20))
     integ = ctx.integrator(integrator, fixed=fixed, run=name, **integrator_options)
     substeps = 1
     if not fixed and ctx.stepping.overridden and not getattr(integ, "implicit", False):
         dts = stable_dt_estimate(model)
-        if dt > CFL_SAFETY * dts:
-            substeps = int(math.ceil(dt / (CFL_SAFETY * dts)))
+        substeps = substeps_for(dt, dts)
+        if substeps > 1:
             ctx.progress(f"{name}: {integ.name} needs dt <= {dts:.3g} s (CFL estimate) but the scene steps "
                          f"{dt:.3g} s: taking {substeps} sub-steps per step")
-    h = dt / substeps
+    monitor = Monitor(integ.name, dt / substeps, energy_bound, model=model)
+    advance = model_stepper(model, state, dt, integ, monitor, n_steps, energy_every, substeps, check_interrupt)
+    return recorded_run(ctx, name, dt, n_steps, every, advance, step_drawer(ctx.rec, dt, state, log, observe))
+
+
+def simulate_method(ctx, name: str, model, state, dt: float, n_steps: int, method: str, every: int,
+                    energy_bound: float | None = None, observe=None, log=None, fixed: bool = False,
+                    label: str | None = None):
+    """Like :func:`simulate` for a ``method`` (a name) the lesson has already chosen, run by the
+    engine's many-steps kernel (small spring-only models; backward Euler on a chain such as the rod):
+    one launch per chunk of ``every`` steps, the energies of every step. The run is noted as
+    ``label`` (default: the method) and ``fixed`` or not. Returns (steps, kinetic, potential)."""
+    ctx.note_integrator(name, label or method, fixed)
+
+    def advance(chunk, done):
+        K, W = run_many_steps(model, state, dt, chunk, method, energy_bound, step_offset=done)
+        return np.arange(done + 1, done + chunk + 1), K, W
+    return recorded_run(ctx, name, dt, n_steps, every, advance, step_drawer(ctx.rec, dt, state, log, observe))
+
+
+def recorded_run(ctx, name: str, dt: float, n_steps: int, every: int, advance, draw):
+    """The one lesson run: the engine's run loop (engine.integrators.run.run) in chunks of ``every``
+    steps, with the run's energies sent to the recorder as they come, ``draw(step)`` after every
+    chunk (and at 0), progress when it ends, and a blow-up drawn at its step, marked in the
+    recording and re-raised."""
+    rec = ctx.rec
     rec.run(name)
-    steps, kin, pot = [], [], []
 
-    draw = step_drawer(rec, dt, state, log, observe)
+    def on_energies(steps, K, W):
+        if not rec.enabled:
+            return
+        if len(steps) == steps[-1] - steps[0] + 1:  # every step: one column
+            rec.energies(K, W, dt, first_step=int(steps[0]) - 1)
+        else:  # sparse samples: one by one at their own steps
+            for s, k, w in zip(steps, K, W):
+                rec.energies([k], [w], dt, first_step=int(s) - 1)
 
-    def flush_energies(first):
-        if rec.enabled and kin[first:]:
-            k = np.asarray(kin[first:])
-            w = np.asarray(pot[first:])
-            if energy_every == 1:
-                rec.energies(k, w, dt, first_step=steps[first] - 1)
-            else:  # sparse samples: log them one by one at their own steps
-                for s, ks, ws in zip(steps[first:], k, w):
-                    rec.energies([ks], [ws], dt, first_step=s - 1)
-
-    def fail(s, E, exc_cls_message):
-        flush_energies(flushed)
-        draw(s)
-        rec.set_time(s, s * dt)
-        rec.mark(str(exc_cls_message), level="ERROR")
-        raise exc_cls_message
-
-    draw(0)
-    flushed = 0
-    begin = getattr(integ, "begin", None)
-    if begin is not None:
-        begin(model, state)
     with ctx.timed(name, n_steps):
-        for s in range(1, n_steps + 1):
-            check_interrupt()
-            try:
-                for _ in range(substeps):
-                    if hasattr(integ, "advance"):
-                        integ.advance(model, state, h)
-                    else:
-                        integ.step(model, state, h, 1)
-            except SolverError as err:  # the integrator left the state at the last good step
-                E = diagnostics.kinetic_energy(model, state) + model.potential_energy(state.x)
-                fail(s, E, BlowUpError(
-                    f"{integ.name} failed at step {s - 1} (t={state.t:.4g} s, total energy {E:.4g} J at the last "
-                    f"good step): {err}; likely cause: the linear solver did not converge (raise --tol, allow more "
-                    f"iterations, or use --solver cholesky)",
-                    step=s - 1, time=state.t, energy=E, dt=dt, dt_stable=math.inf, integrator=integ.name))
-            if s % energy_every == 0 or s == n_steps:
-                K = diagnostics.kinetic_energy(model, state)
-                W = model.potential_energy(state.x)
-                steps.append(s)
-                kin.append(K)
-                pot.append(W)
-                E = K + W
-                if not math.isfinite(E) or (energy_bound is not None and E > energy_bound):
-                    dts = stable_dt_estimate(model)
-                    fail(s, E, BlowUpError(_blowup_message(integ.name, s - 1, state.t, E, energy_bound, h, dts),
-                                           step=s - 1, time=state.t, energy=E, dt=h, dt_stable=dts,
-                                           integrator=integ.name))
-            if s % every == 0 or s == n_steps:
-                flush_energies(flushed)
-                flushed = len(kin)
-                draw(s)
-    return np.asarray(steps), np.asarray(kin), np.asarray(pot)
+        try:
+            return run(advance, n_steps, every, on_energies, draw, check_interrupt)
+        except BlowUpError as exc:
+            rec.set_time(exc.step + 1, (exc.step + 1) * dt)
+            rec.mark(str(exc), level="ERROR")
+            raise
 
 
 def step_drawer(rec, dt: float, state, log=None, observe=None):
@@ -124,35 +104,3 @@ def step_drawer(rec, dt: float, state, log=None, observe=None):
     return draw
 
 
-def run_chunked(ctx, name: str, dt: float, n_steps: int, every: int, advance, draw):
-    """The loop shared by runners that advance many steps per kernel launch.
-
-    ``advance(chunk, done)`` runs ``chunk`` steps and returns per-step (kinetic, potential);
-    on a blow-up it raises an engine BlowUpError carrying ``kinetic``/``potential`` up to the
-    bad step. ``draw(step)`` logs/observes the state after ``step`` steps (and at 0). The
-    energies of every step go to the recorder; a blow-up is recorded up to its step, marked,
-    its energies extended to the whole run, and re-raised. Returns (kinetic, potential).
-    """
-    rec = ctx.rec
-    kin, pot = [], []
-    draw(0)
-    done = 0
-    with ctx.timed(name, n_steps):
-        while done < n_steps:
-            check_interrupt()
-            chunk = min(every, n_steps - done)
-            try:
-                K, W = advance(chunk, done)
-            except errors.BlowUpError as exc:  # any engine blow-up: keep energies up to the bad step, mark, re-raise
-                rec.energies(exc.kinetic, exc.potential, dt, first_step=done)
-                exc.kinetic = np.concatenate(kin + [exc.kinetic])
-                exc.potential = np.concatenate(pot + [exc.potential])
-                draw(exc.step + 1)
-                rec.mark(str(exc), level="ERROR")
-                raise
-            kin.append(K)
-            pot.append(W)
-            rec.energies(K, W, dt, first_step=done)
-            done += chunk
-            draw(done)
-    return np.concatenate(kin), np.concatenate(pot)

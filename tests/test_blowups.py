@@ -30,7 +30,7 @@ from engine.recorder import NullRecorder, Recorder, summarize
 from engine.scenes import Rod
 from lessons import rod_waves
 from lessons._framework import Lesson, StageContext
-from lessons._scene import run_chunked, simulate
+from lessons._scene import simulate, simulate_method
 
 
 # --------------------------------------------------------------------------------------------
@@ -315,17 +315,13 @@ def test_fused_spring_kernel_blowup_at_its_step(method, over):
     assert f"blew up at step {1000 + expected} " in msg and f"{exc.energy:.4g} J" in msg
     assert f"dt_stable={dts:.3g} s" in msg and "likely cause" in msg
 
-    # in chunks through the lessons' loop: recorded up to the step and marked there
+    # in chunks through the lessons' one runner: recorded up to the step and marked there
     rec = CallRecorder()
     state = model.make_state(X, v0)
 
-    def draw(step):
-        rec.set_time(step, step * dt)
-        rec.points("x", state.x.to_numpy())
-
     with pytest.raises(BlowUpError) as info:
-        run_chunked(make_ctx(rec), "chain", dt, 5000, 7, draw=draw,
-                    advance=lambda chunk, done: run_fused(model, state, dt, chunk, method, bound, step_offset=done))
+        simulate_method(make_ctx(rec), "chain", model, state, dt, 5000, method, 7, bound,
+                        log=lambda r, st: r.points("x", st.x.to_numpy()))
     assert info.value.step == expected
     text = assert_recorded_up_to(rec, expected, 7)
     assert text == str(info.value)

@@ -16,8 +16,8 @@ Measured and asserted:
   per task and tasks are ceil(n / block_dim) with an adaptive block_dim that depends on the
   thread count, so the last bits differ. Asserted: equal to far below the solver tolerance.
 - implicit, 2 threads, run to run: Cholesky (started from the explicit phase's state) is
-  bitwise reproducible: the assembly kernels (linalg._assemble_mass/_assemble_springs/
-  _assemble_hinges) append their triplets to the SparseMatrixBuilder in a serialized loop, so
+  bitwise reproducible: the assembly kernels (engine.assembly.assemble_mass and the
+  per-stencil element_assembler) append their triplets to the SparseMatrixBuilder in a serialized loop, so
   duplicates are always summed in the same order (from a parallel loop, 1 run in 6 differed).
   PCG was reproducible in every run measured, but its parallel reductions do not guarantee
   it. Asserted: PCG equal to far below the solver tolerance.

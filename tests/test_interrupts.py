@@ -50,7 +50,7 @@ def test_a_signal_whose_exception_was_swallowed_stops_the_run_at_the_next_chunk(
     next chunk instead of running on."""
     from engine.recorder import NullRecorder
     from lessons._framework import Terminated, _pending_signal, note_signal
-    from lessons._scene import run_chunked
+    from lessons._scene import recorded_run
 
     class Ctx:
         rec = NullRecorder()
@@ -66,12 +66,12 @@ def test_a_signal_whose_exception_was_swallowed_stops_the_run_at_the_next_chunk(
         chunks.append(done)
         if done == 20:
             note_signal(sig)  # the handler ran, but its exception was swallowed
-        return [0.0] * chunk, [0.0] * chunk
+        return list(range(done + 1, done + chunk + 1)), [0.0] * chunk, [0.0] * chunk
 
     expected = KeyboardInterrupt if sig == signal.SIGINT else Terminated
     try:
         with pytest.raises(expected):
-            run_chunked(Ctx(), "run", 1e-3, 1000, 10, advance, lambda step: None)
+            recorded_run(Ctx(), "run", 1e-3, 1000, 10, advance, lambda step: None)
     finally:
         _pending_signal.clear()
     assert chunks == [0, 10, 20]

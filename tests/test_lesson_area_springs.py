@@ -17,7 +17,8 @@ from engine.model import Model
 from engine.waves import (ModeProbe, cauchy_born_tensor, christoffel, max_speed, phase_frequency,
                           relaxed_stiffness_2d, young_poisson)
 from lessons._framework import validate_config
-from lessons._measure import be_damping_rate, central_gradient, damped_frequency
+from engine.theory.schemes import backward_euler_damping_rate as be_damping_rate
+from lessons._measure import central_gradient, damped_frequency
 from lessons.area_springs import LESSON, AreaSpringsConfig
 from lessons.area_springs.stages import bulk_tensor
 from tests.helpers import assert_all_passed, assert_unique_ids, run_stage

@@ -12,7 +12,8 @@ from engine.errors import ParameterError
 from engine.recorder import Recorder, summarize
 from lessons._framework import validate_config
 from lessons.explicit_vs_implicit import LESSON, ExplicitImplicitConfig
-from lessons.explicit_vs_implicit.stages import _crossover, symplectic_euler_growth
+from engine.theory.schemes import symplectic_euler_growth
+from lessons.explicit_vs_implicit.stages import _crossover
 from tests.helpers import assert_all_passed, assert_unique_ids, run_stage
 
 

@@ -243,7 +243,7 @@ def _why_explicit(rows, side, step) -> list:
     if all(ks.values()):
         total = sum(k["per_step_s"] for k in ks.values())
         parts = ", ".join(f"{k} {v['per_step_s'] * 1e6:.0f} us ({v['per_step_s'] / total:.0%})" for k, v in ks.items())
-        why.append(f"The engine's step is one kernel launch (engine/integrators/fused_step.py: the per-hinge "
+        why.append(f"The engine's step is one kernel launch (engine/integrators/kernels.py, one_launch_step: the per-hinge "
                    f"pass, then per vertex the spring and hinge gathers with the velocity update, then the "
                    f"position update); its {len(ks)} parts, launched alone as the generic path does, take {parts} "
                    f"(sum {total * 1e3:.3f} ms against {step['per_step_s'] * 1e3:.3f} ms for the fused step).")

@@ -53,6 +53,10 @@ class Energy:
     elements = None             # (max(m, 1), k) i32 ndarray of element vertices
     block = None                # ti.func block(blocks, e, a: template, b: template) -> mat3 H_e,ab
     products: frozenset = frozenset()  # of "blocks", "pair-gather", "rank-one"
+    # How the explicit fast kernels can take its forces (engine.integrators.kernels): "pair-gather"
+    # (spring_gather over force_args()), "slot-gather" (a per-element pass, then a per-vertex gather
+    # over force_args(): hinge_force_vectors + hinge_gather), or None (only add_forces).
+    force_form: str | None = None
     pair_incidence = None       # "pair-gather": (offsets, inc_edge, inc_other) i32 ndarrays
     slot_incidence = None       # "rank-one": (offsets, entries) i32 ndarrays, entry = k*element + slot
 

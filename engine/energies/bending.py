@@ -594,6 +594,7 @@ class BendingEnergy(Energy):
     stencil_size = 4
     block = staticmethod(hinge_block)
     products = frozenset({"rank-one"})
+    force_form = "slot-gather"
 
     def __init__(self, rest_positions, hinges, B, variant: str = "notes", theta_bar=None,
                  from_rest: bool = False):
@@ -641,9 +642,6 @@ class BendingEnergy(Energy):
         self.n_elements = h
         self.elements = self.hinges
         self.slot_incidence = (self.offsets, self.entries)
-        # old private names (engine/integrators/fused_step.py, bench/ read them): same objects
-        self._hinges, self._k, self._theta_bar = self.hinges, self.k_nd, self.theta_bar_nd
-        self._offsets, self._entries, self._per_hinge_vec = self.offsets, self.entries, self.per_hinge_vec
         self._scalars = ti.ndarray(dtype=float, shape=m)
         self._blocks = None
         self._diag = None

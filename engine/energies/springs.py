@@ -253,6 +253,7 @@ class SpringEnergy(Energy):
     stencil_size = 2
     block = staticmethod(spring_pair_block)
     products = frozenset({"blocks", "pair-gather"})
+    force_form = "pair-gather"
 
     def __init__(self, n_vertices: int, edges: np.ndarray, L: np.ndarray, c: np.ndarray,
                  X: np.ndarray | None = None, coef_name: str = "c"):

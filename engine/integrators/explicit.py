@@ -20,8 +20,6 @@ import numpy as np
 import taichi as ti
 
 from engine.constants import MANY_STEPS_BELOW
-from engine.energies.bending import BendingEnergy
-from engine.energies.springs import SpringEnergy
 from engine.fields import scratch_vec3, zero_vec3
 from engine.integrators import kernels as K
 from engine.integrators.monitor import Monitor
@@ -58,36 +56,26 @@ def _plan(model: Model, what: str, build):
 
 
 def _signature(model: Model) -> tuple:
-    """The model's energies as the forms the fast kernels know: ("springs",), ("springs", "hinges"), or ()."""
-    es = list(model.energies)
-    if not es or not isinstance(es[0], SpringEnergy) or es[0].m == 0:
+    """The model's energies as the forms the fast kernels know (each energy's ``force_form``, non-empty
+    ones only): ("springs",) for one pair-gather energy, ("springs", "hinges") for one pair-gather
+    energy followed by one slot-gather energy, () for anything else."""
+    es = [e for e in model.energies if e.n_elements > 0]
+    if len(es) != len(model.energies) or not es or es[0].force_form != "pair-gather":
         return ()
     if len(es) == 1:
         return ("springs",)
-    if (len(es) == 2 and isinstance(es[1], BendingEnergy) and es[1].n_hinges > 0
-            and es[1].n_vertices == model.n):
+    if len(es) == 2 and es[1].force_form == "slot-gather" and es[1].n_vertices == model.n:
         return ("springs", "hinges")
     return ()
-
-
-def _spring_args(e):
-    """The arrays spring_gather takes, from the energy's public accessor."""
-    return e.gather_args() if hasattr(e, "gather_args") else (e.offsets, e.inc_other, e.inc_inv_L, e.inc_c_over_L)
-
-
-def _hinge_args(e):
-    """The arrays hinge_force_vectors + hinge_gather take (hinges, k, theta_bar, mode, per-hinge vectors,
-    offsets, entries), from the energy's public accessor."""
-    return e.force_args() if hasattr(e, "force_args") else (*e._args(), e._per_hinge_vec, e._offsets, e._entries)
 
 
 def _build_one_launch(model: Model):
     sig = _signature(model)
     if not sig:
         return None
-    sargs = _spring_args(model.energies[0])
+    sargs = model.energies[0].force_args()
     if sig == ("springs", "hinges"):
-        hargs = (*_hinge_args(model.energies[1]), True)
+        hargs = (*model.energies[1].force_args(), True)
     else:
         d = _dummies(model)
         hargs = (d["dummy_h"], d["dummy_s"], d["dummy_s"], 0, d["dummy_w"], d["dummy_i"], d["dummy_i"], False)
@@ -120,7 +108,7 @@ def many_steps_plan(model: Model, integrator=None):
     if fn is None or integrator is None:
         return fn if integrator is None else None
     name = getattr(integrator, "name", integrator)
-    if name not in ("forward-euler", "symplectic-euler", "velocity-verlet"):
+    if name not in K.EXPLICIT:
         return None
     return lambda state, dt, n_steps, monitor: fn(state, dt, n_steps, name, monitor)
 
@@ -153,7 +141,7 @@ def _many_steps(model, springs, state, dt, n_steps, method, monitor):
     kin, pot = _energy_buffers(n_steps)
     Cp, Dp = _chain_work(model)
     done = K.many_steps(state.x, state.v, scratch_vec3(model, "explicit_f"), scratch_vec3(model, "explicit_a"),
-                        *_spring_args(springs), springs.edges, springs.L, springs.c, springs.m, model.mass_nd,
+                        *springs.force_args(), springs.edges, springs.L, springs.c, springs.m, model.mass_nd,
                         model.inv_mass_nd, model.gravity_vec, dt, n_steps, kin, pot, monitor.bound, Cp, Dp,
                         K.METHODS[method])
     taken = min(done + 1, n_steps)
@@ -194,14 +182,13 @@ def run_many_steps(model: Model, state: State, dt: float, n_steps: int, method: 
     that step and the energies up to and including it in ``.kinetic``/``.potential``."""
     if method not in K.METHODS:
         raise ValueError(f"unknown method {method!r}; valid: {', '.join(K.METHODS)}")
-    springs = [e for e in model.energies if isinstance(e, SpringEnergy)]
     if _signature(model) != ("springs",):
         raise ValueError(f"run_many_steps needs a spring-only model (exactly one spring energy, plus gravity and "
                          f"pins); this model has energies {[e.name for e in model.energies]}")
     if method == "backward-euler" and not is_chain(model):
         raise ValueError("run_many_steps takes backward-euler steps only on a chain (springs joining i and i + 1)")
     monitor = Monitor(method, dt, energy_bound, model=model, step_offset=step_offset)
-    return _many_steps(model, springs[0], state, dt, n_steps, method, monitor)
+    return _many_steps(model, model.energies[0], state, dt, n_steps, method, monitor)
 
 
 # --------------------------------------------------------------------------------------------
@@ -313,12 +300,3 @@ def run(model: Model, state: State, dt: float, n_steps: int, integrator="symplec
     advance = model_stepper(model, state, dt, integ, monitor, n_steps, energy_every=int(check_every))
     _, kin, pot = run_loop(advance, n_steps, max(n_steps, 1))
     return kin + pot
-
-
-# -- TEMPORARY names for the lessons until they move to the one runner (removed in the same series) --
-from engine.errors import BlowUpError  # noqa: E402,F401
-from engine.stability import gershgorin_lambda_max, lambda_max_power, stable_dt_estimate  # noqa: E402,F401
-
-
-def _blowup_message(name, step, t, E, bound, dt, dt_stable):  # noqa: D103
-    return str(Monitor(name, dt, bound, dt_stable=dt_stable).blow_up(step, t, E))

@@ -49,7 +49,6 @@ any dt.
 import math
 from dataclasses import dataclass, field
 
-import numpy as np
 import taichi as ti
 
 from engine.errors import ParameterError

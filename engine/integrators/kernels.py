@@ -36,6 +36,7 @@ from engine.fields import int_array2 as hinge_array
 FORWARD_EULER, SYMPLECTIC_EULER, VELOCITY_VERLET, BACKWARD_EULER = 0, 1, 2, 3
 METHODS = {"forward-euler": FORWARD_EULER, "symplectic-euler": SYMPLECTIC_EULER,
            "velocity-verlet": VELOCITY_VERLET, "backward-euler": BACKWARD_EULER}
+EXPLICIT = ("forward-euler", "symplectic-euler", "velocity-verlet")
 
 # phases of update(): which part of a step a loop performs
 STEP = 0        # the whole per-vertex update of (E1) or (E2) (forces of the old state in f)

@@ -104,3 +104,21 @@ class ModalReference:
         U = np.zeros((len(steps), self.n))
         U[:, self.free] = (self.phi @ Q).T
         return U
+
+
+def symplectic_euler_growth(z: float) -> float:
+    """Largest |eigenvalue| of symplectic Euler's step matrix for a mode with (w dt)^2 = z:
+    x+ = (1 - z) x + dt v, v+ = v - w^2 dt x, so lambda^2 - (2 - z) lambda + 1 = 0 (stable, on the unit
+    circle, for z <= 4)."""
+    b = 2.0 - z
+    disc = b * b - 4.0
+    if disc <= 0.0:
+        return 1.0  # complex pair on the unit circle: stable
+    return (abs(b) + math.sqrt(disc)) / 2.0
+
+
+def backward_euler_damping_rate(w: float, dt: float) -> float:
+    """Backward Euler on an oscillator whose scheme frequency is w (phase arctan(W dt) = w dt per
+    step, W the true frequency): amplitude factor 1/sqrt(1 + (W dt)^2) = cos(w dt) per step, i.e.
+    the decay rate -ln(cos(w dt))/dt."""
+    return -math.log(math.cos(w * dt)) / dt

@@ -14,13 +14,14 @@ import math
 import numpy as np
 
 from engine import mesh as M
-from engine.integrators.explicit import stable_dt_estimate
 from engine.model import Model
+from engine.stability import stable_dt_estimate
 from engine.waves import (ModeProbe, cauchy_born_tensor, christoffel, max_speed, phase_frequency,
                           relaxed_stiffness_2d, young_poisson)
+from engine.theory.schemes import backward_euler_damping_rate as be_damping_rate
 
 from .._framework import Experiment
-from .._measure import be_damping_rate, damped_frequency, edge_strain, vertex_strain
+from .._measure import damped_frequency, edge_strain, vertex_strain
 from .._scene import simulate
 
 RUN_PERIODS = 0.3   # each standing-wave run lasts this fraction of a period (phase 0 -> 1.9 rad)

@@ -10,7 +10,8 @@ from engine.analysis import convergence_order, fit_slope
 from engine.constants import G
 from engine.energies.bending import BendingEnergy, bridson_u_kernel, theta_gradient_kernel
 from engine.integrators import make_integrator
-from engine.model import Model, vec3_ndarray
+from engine.fields import vec3_ndarray
+from engine.model import Model
 from engine.scenes import cloth
 from engine.statics import solve_static
 

@@ -16,7 +16,8 @@ from engine.analysis import fit_slope
 from engine.errors import BlowUpError
 from engine.integrators import make_integrator
 from engine.stability import gershgorin_lambda_max, lambda_max_power
-from engine.model import vec3_ndarray
+from engine.theory.schemes import symplectic_euler_growth
+from engine.fields import vec3_ndarray
 from engine.recorder import strain_colors
 from engine.scenes import cloth
 from engine.statics import solve_static
@@ -89,16 +90,6 @@ def free_modes(model, x, planar: bool = True):
         u[dofs] = s * V[:, k]
         shapes[k] = u.reshape(-1, 3)
     return np.sqrt(np.maximum(w2, 0.0)), w2, shapes
-
-
-def symplectic_euler_growth(z: float) -> float:
-    """Largest |eigenvalue| of symplectic Euler's step matrix for a mode with (w dt)^2 = z:
-    x+ = (1 - z) x + dt v, v+ = v - w^2 dt x, so lambda^2 - (2 - z) lambda + 1 = 0."""
-    b = 2.0 - z
-    disc = b * b - 4.0
-    if disc <= 0.0:
-        return 1.0  # complex pair on the unit circle: stable
-    return (abs(b) + math.sqrt(disc)) / 2.0
 
 
 def in_plane_seed(model, size: float, seed: int) -> np.ndarray:

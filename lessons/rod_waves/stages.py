@@ -19,7 +19,7 @@ from engine.scenes import Rod
 
 from .._framework import Experiment
 from .._measure import central_gradient, expect, modal_tracks, observation_steps, rod_node_strain, track_peaks
-from .._scene import run_chunked
+from .._scene import simulate_method
 
 # ------------------------------------------------------------------ scenes and runs
 
@@ -48,31 +48,20 @@ def method_label(method: str) -> str:
 
 def simulate(ctx, name: str, rod: Rod, state, dt: float, n_steps: int, method: str = "symplectic-euler",
              energy_bound: float | None = None, observe=None, every: int | None = None, fixed: bool = False):
-    """Run ``n_steps`` of ``method`` (already chosen: see :func:`scene_method`) in chunks of
-    ``every`` steps (one kernel launch each), logging the rod and its energies to the recorder
-    and calling ``observe(step, t, u)`` after each chunk (and at step 0). The run is noted,
-    as ``fixed`` or not. Returns (kinetic, potential) per step. A blow-up is logged, marked in
-    the recording and re-raised."""
-    rec = ctx.rec
-    every = every or ctx.cfg.record_every
-    ctx.note_integrator(name, method_label(method), fixed)
-    rec.run(name)
+    """Run ``n_steps`` of ``method`` (already chosen: see :func:`scene_method`) through the one
+    lesson runner (``lessons._scene.simulate_method``: one many-steps launch per chunk of ``every``
+    steps), drawing the rod and calling ``observe(step, t, u)`` after each chunk (and at step 0).
+    Returns (kinetic, potential) per step. A blow-up is drawn, marked in the recording and re-raised."""
     gain = 0.1 / max(ctx.cfg.amplitude, 1e-300)
 
-    def log(step):
-        if rec.enabled:
-            x = state.positions()
-            rec.set_time(step, step * dt)
-            rec.rod(x, rod.p, rod_node_strain(x, rod.p), gain=gain)
+    def log(rec, st):
+        x = st.positions()
+        rec.rod(x, rod.p, rod_node_strain(x, rod.p), gain=gain)
 
-    def draw(step):
-        log(step)
-        if observe:
-            observe(step, step * dt, state.displacement(rod))
-
-    return run_chunked(ctx, name, dt, n_steps, every, draw=draw,
-                       advance=lambda chunk, done: rod.run(state, dt, chunk, method, energy_bound,
-                                                           step_offset=done))
+    on_state = (lambda step, st: observe(step, step * dt, st.displacement(rod))) if observe else None
+    _, K, W = simulate_method(ctx, name, rod.model, state, dt, n_steps, method, every or ctx.cfg.record_every,
+                              energy_bound, observe=on_state, log=log, fixed=fixed, label=method_label(method))
+    return K, W
 
 
 def uniform_rod(cfg, pinned=()) -> Rod:

@@ -21,16 +21,18 @@ from engine.analysis import convergence_order, fit_slope
 from engine.constants import G
 from engine.errors import BlowUpError
 from engine.integrators import get as get_integrator
-from engine.integrators.explicit import stable_dt_estimate
-from engine.integrators.fused import METHODS as FUSED_METHODS, run_fused
-from engine.model import Model, vec3_ndarray
+from engine.stability import stable_dt_estimate
+from engine.integrators.explicit import run_many_steps
+from engine.integrators.kernels import EXPLICIT
+from engine.fields import vec3_ndarray
+from engine.model import Model
 from engine.scenes import Rod
 from engine.statics import solve_static
 
 from .._framework import Experiment
 from .._measure import (central_difference, central_gradient, edge_strain, expect, modal_tracks, observation_steps,
                         random_rotation, rod_node_strain, track_peaks)
-from .._scene import run_chunked, simulate as scene_simulate, step_drawer
+from .._scene import simulate as scene_simulate, simulate_method
 
 # ------------------------------------------------------------------ scenes and runs
 
@@ -58,17 +60,11 @@ def draw_springs(rec, model: Model, x: np.ndarray, scale: float | None = None) -
 
 def simulate_fused(ctx, name: str, model: Model, state, dt: float, n_steps: int, method: str,
                    every: int, energy_bound: float | None = None, observe=None, log=None, fixed: bool = False):
-    """Run ``n_steps`` of :func:`run_fused` in chunks of ``every`` steps (one launch each),
-    recording the energies of every step and calling ``log(rec, state)`` (when recording) and
-    ``observe(step, state)`` after each chunk and at step 0. The run's integrator is noted
-    (``fixed`` or not). Returns (kinetic, potential) per step. A blow-up is recorded up to its
-    step, marked, and re-raised."""
-    rec = ctx.rec
-    ctx.note_integrator(name, method, fixed)
-    rec.run(name)
-    return run_chunked(ctx, name, dt, n_steps, every, draw=step_drawer(rec, dt, state, log, observe),
-                       advance=lambda chunk, done: run_fused(model, state, dt, chunk, method, energy_bound,
-                                                             step_offset=done))
+    """A run of the many-steps kernel through the one lesson runner (``lessons._scene.simulate_method``).
+    Returns (kinetic, potential) per step."""
+    _, K, W = simulate_method(ctx, name, model, state, dt, n_steps, method, every, energy_bound, observe=observe,
+                              log=log, fixed=fixed)
+    return K, W
 
 
 # ------------------------------------------------------------------------- stage 1
@@ -237,7 +233,7 @@ def _fused_matches_stepwise(ctx):
     exps = []
     for method in ("symplectic-euler", "velocity-verlet", "forward-euler"):
         a, b = model.make_state(x0, v0), model.make_state(x0, v0)
-        K, W = run_fused(model, a, dt, 100, method)
+        K, W = run_many_steps(model, a, dt, 100, method)
         get_integrator(method).step(model, b, dt, 100)
         ctx.note_integrator(f"fused_vs_stepwise_{method}", method, fixed=True)
         xa, xb = a.numpy().x, b.numpy().x
@@ -306,7 +302,7 @@ def _wobble(ctx, name, model, x0, v0, dt, T, method):
     ctx.note_integrator(name, method, fixed=True)
     st = model.make_state(x0, v0)
     E0 = diagnostics.total_energy(model, st)
-    K, W = run_fused(model, st, dt, int(round(T / dt)), method)
+    K, W = run_many_steps(model, st, dt, int(round(T / dt)), method)
     E = np.concatenate([[E0], K + W])
     return float(E.max() - E.min())
 
@@ -339,7 +335,7 @@ def _forward_euler_modes(ctx):
     # the window: as many steps (at most 2000) as keep the predicted growth below 30x, so the
     # amplitude stays small and the motion linear
     n_fe = int(np.arange(1, 2001)[max(np.searchsorted(growth, 30.0) - 1, 0)])
-    K, W = run_fused(model, st, dt, n_fe, "forward-euler")
+    K, W = run_many_steps(model, st, dt, n_fe, "forward-euler")
     ctx.note_integrator("frame_forward-euler_growth", "forward-euler", fixed=True)
     predicted = float(growth[n_fe - 1])
     exps = [Experiment("frame, forward Euler: energy growth over n steps = sum_k E_k (1 + w_k^2 dt^2)^n / E0",
@@ -351,7 +347,7 @@ def _forward_euler_modes(ctx):
     st = model.make_state(x0)
     try:
         ctx.note_integrator("frame_forward-euler_detect", "forward-euler", fixed=True)
-        run_fused(model, st, dt, n_fe, "forward-euler", energy_bound=bound)
+        run_many_steps(model, st, dt, n_fe, "forward-euler", energy_bound=bound)
         detected = math.inf
     except BlowUpError as exc:
         detected = exc.step
@@ -591,7 +587,7 @@ def _pulse_speed(ctx, name, model, p, c_scale, sigma, k, rho, p0=0.25):
         rec.rod(x, p, rod_node_strain(x, p), gain=0.1 / A)
 
     on_state = lambda step, s: observe(step, step * dt, s.x.to_numpy()[:, 0] - p)
-    if method in FUSED_METHODS:
+    if method in EXPLICIT:
         simulate_fused(ctx, name, model, st, dt, n_steps, method, every, energy_bound=bound, observe=on_state,
                        log=log)
     else:  # backward Euler (with --solver/--tol/--newton-iterations) via the engine's integrator
