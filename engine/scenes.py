@@ -25,14 +25,16 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg as sla
+import taichi as ti
 
 from engine import mesh as meshes
 from engine.constants import G
 from engine.energies.bending import BendingEnergy
 from engine.errors import ParameterError
-from engine.fields import scratch_vec3, zero_vec3
-from engine.model import Model, State
-from engine.stability import gershgorin_lambda_max
+from engine.energies.axial import axial_energy_kernel, axial_forces_kernel
+from engine.fields import scalar_ndarray
+from engine.model import Model
+from engine.stability import lambda_max_from_rows
 
 
 @dataclass
@@ -68,12 +70,16 @@ def cloth(n: int, size: float = 1.0, E: float = 1e3, rho: float = 0.1, B: float 
 
 
 
-class RodState(State):
-    """A state of a :class:`Rod`: the Model's positions and velocities, read along the axis."""
+class RodState:
+    """A state of a :class:`Rod`: positions ``x`` and velocities ``v`` along the axis (scalar
+    ndarrays), time ``t``."""
+
+    def __init__(self, x, v, t: float = 0.0):
+        self.x, self.v, self.t = x, v, float(t)
 
     def positions(self) -> np.ndarray:
         """x_i along the axis (m)."""
-        return self.x.to_numpy()[:, 0].astype(np.float64)
+        return self.x.to_numpy().astype(np.float64)
 
     def displacement(self, rod: "Rod") -> np.ndarray:
         """u_i = x_i - p_i (m)."""
@@ -81,7 +87,7 @@ class RodState(State):
 
     def velocity(self) -> np.ndarray:
         """dx_i/dt along the axis (m/s)."""
-        return self.v.to_numpy()[:, 0].astype(np.float64)
+        return self.v.to_numpy().astype(np.float64)
 
 
 class Rod:
@@ -121,11 +127,11 @@ class Rod:
         self.mass[1:] += 0.5 * seg_mass
         self.pinned = np.zeros(n, dtype=bool)
         self.pinned[pinned] = True
-        X = np.zeros((n, 3))
-        X[:, 0] = p
-        edges = np.stack([np.arange(n - 1), np.arange(1, n)], axis=1)
-        self.model = Model.from_springs(X, edges, c=E * h, L=h, mass=self.mass, pinned=self.pinned)
+        inv_m = np.where(self.pinned, 0.0, 1.0 / self.mass)
+        self._h, self._E, self._m, self._inv_m = (scalar_ndarray(a) for a in (h, E, self.mass, inv_m))
+        self._work = tuple(scalar_ndarray(np.zeros(n)) for _ in range(3))  # a, Cp, Dp of axial_steps
         self._modes = None
+        self._model = None
 
     @classmethod
     def uniform(cls, nodes: int, length: float = 1.0, E=1.0, rho=1.0, pinned=()):
@@ -142,11 +148,27 @@ class Rod:
         """Z = sqrt(E rho) per segment (kg/s)."""
         return np.sqrt(self.E * self.rho)
 
+    @property
+    def model(self) -> Model:
+        """The same rod as a chain Model in 3D (springs c = E h along x, the lumped masses and pins),
+        for the general solvers and the energies' own checks."""
+        if self._model is None:
+            X = np.zeros((self.n, 3))
+            X[:, 0] = self.p
+            edges = np.stack([np.arange(self.n - 1), np.arange(1, self.n)], axis=1)
+            self._model = Model.from_springs(X, edges, c=self.E * self.h, L=self.h, mass=self.mass,
+                                             pinned=self.pinned)
+        return self._model
+
     def omega_max_bound(self) -> float:
         """Upper bound on the highest angular frequency: the Gershgorin bound (engine.stability (C1))
-        of the chain model; row i sums 2 (k_{i-1} + k_i), k_j = E_j/h_j, exact for a uniform free
-        rod: w_max = 2c/h."""
-        return float(np.sqrt(gershgorin_lambda_max(self.model)))
+        on M^-1 K; row i sums 2 (k_{i-1} + k_i), k_j = E_j/h_j (the chain model's row sums along
+        the axis), exact for a uniform free rod: w_max = 2c/h."""
+        k = self.E / self.h
+        row = np.zeros(self.n)
+        row[:-1] += 2 * k
+        row[1:] += 2 * k
+        return float(np.sqrt(lambda_max_from_rows(row, self.mass, ~self.pinned)))
 
     def stable_dt(self) -> float:
         """Largest dt with w_max dt <= 2 (symplectic Euler's and velocity Verlet's limit); conservative."""
@@ -183,37 +205,27 @@ class Rod:
             self._modes = (np.clip(w2, 0.0, None), s[:, None] * Y, free)
         return self._modes
 
-    # --- the chain model ------------------------------------------------------
-    def _vec3(self, x):
-        """Positions as a vec3 ndarray: a state's ``x`` as it is, numpy positions along the axis copied."""
-        if isinstance(x, np.ndarray):
-            X = np.zeros((self.n, 3))
-            X[:, 0] = x
-            a = scratch_vec3(self.model, "rod_x")
-            a.from_numpy(X.astype(a.to_numpy().dtype))
-            return a
-        return x
-
+    # --- kernels ---------------------------------------------------------------------
     def energy(self, x) -> float:
         """W(x) of (R1); x: positions along the axis (numpy) or a state's ``x``."""
-        return self.model.elastic_energy(self._vec3(x))
+        return float(axial_energy_kernel(self._nd(x), self._h, self._E))
 
     def forces(self, x) -> np.ndarray:
         """-dW/dx_i along the axis at every node (pinned ones included)."""
-        f = scratch_vec3(self.model, "rod_f")
-        zero_vec3(f)
-        self.model.add_elastic_forces(self._vec3(x), f)
-        return f.to_numpy()[:, 0].astype(np.float64)
+        f = scalar_ndarray(np.zeros(self.n))
+        axial_forces_kernel(self._nd(x), self._h, self._E, f)
+        return f.to_numpy().astype(np.float64)
+
+    @staticmethod
+    def _nd(x):
+        return scalar_ndarray(x) if isinstance(x, np.ndarray) else x
 
     def new_state(self, u0=None, v0=None) -> RodState:
         """A state with displacement u0 (x = p + u0) and velocity v0 (zero by default)."""
-        X = np.zeros((self.n, 3))
-        X[:, 0] = self.p + (0 if u0 is None else np.asarray(u0, dtype=np.float64))
-        V = np.zeros((self.n, 3))
-        if v0 is not None:
-            V[:, 0] = np.asarray(v0, dtype=np.float64)
-        st = self.model.make_state(X, V)
-        return RodState(st.x, st.v, st.t)
+        x = self.p + (0 if u0 is None else np.asarray(u0, dtype=np.float64))
+        v = np.zeros(self.n) if v0 is None else np.asarray(v0, dtype=np.float64).copy()
+        v[self.pinned] = 0.0
+        return RodState(scalar_ndarray(x), scalar_ndarray(v))
 
     def kinetic(self, state: RodState) -> float:
         v = state.velocity()
@@ -221,14 +233,26 @@ class Rod:
 
     def run(self, state: RodState, dt: float, n_steps: int, method: str = "symplectic-euler",
             energy_bound: float | None = None, step_offset: int = 0):
-        """Advance ``n_steps`` steps of ``method`` in one launch; returns (kinetic, potential) arrays, one
-        entry per step. A step whose total energy is not finite or exceeds ``energy_bound`` raises the
-        monitor's BlowUpError naming that step (``step_offset`` + index), with the energies so far."""
-        from engine.integrators import METHODS
-        from engine.integrators.explicit import run_many_steps
+        """Advance ``n_steps`` steps of ``method`` in one launch (engine.integrators.kernels.axial_steps);
+        returns (kinetic, potential) arrays, one entry per step. A step whose total energy is not finite
+        or exceeds ``energy_bound`` raises the monitor's BlowUpError naming that step (``step_offset`` +
+        index), with the energies up to it."""
+        from engine.integrators import kernels
+        from engine.integrators.monitor import Monitor
 
         if not (np.isfinite(dt) and dt > 0):
             raise ParameterError(f"dt must be > 0 and finite (got {dt!r})")
-        if method not in METHODS:
-            raise ParameterError(f"integrator must be one of {', '.join(METHODS)} (got {method!r})")
-        return run_many_steps(self.model, state, float(dt), int(n_steps), method, energy_bound, step_offset)
+        if method not in kernels.METHODS:
+            raise ParameterError(f"integrator must be one of {', '.join(kernels.METHODS)} (got {method!r})")
+        n_steps = int(n_steps)
+        monitor = Monitor(method, dt, energy_bound, dt_stable=self.stable_dt, step_offset=step_offset)
+        kin = ti.ndarray(float, max(n_steps, 1))
+        pot = ti.ndarray(float, max(n_steps, 1))
+        a, Cp, Dp = self._work
+        done = kernels.axial_steps(state.x, state.v, a, self._h, self._E, self._m, self._inv_m, float(dt), n_steps,
+                                   kin, pot, monitor.bound, Cp, Dp, kernels.METHODS[method])
+        K, W = kin.to_numpy()[:n_steps].astype(np.float64), pot.to_numpy()[:n_steps].astype(np.float64)
+        state.t += dt * (done + (1 if done < n_steps else 0))
+        if done < n_steps:  # the energies up to the bad step travel with the error
+            raise monitor.blow_up(done, state.t, K[done] + W[done], K[:done + 1], W[:done + 1])
+        return K, W

@@ -11,7 +11,7 @@ import numpy as np
 from engine.errors import BlowUpError
 from engine.integrators.explicit import run_many_steps
 from engine.integrators.monitor import Monitor
-from engine.integrators.run import model_stepper, run
+from engine.integrators.loop import model_stepper, run
 from engine.stability import stable_dt_estimate, substeps_for
 
 from ._framework import check_interrupt
@@ -51,23 +51,28 @@ def simulate(ctx, name: str, model, state, dt: float, n_steps: int, integrator="
     return recorded_run(ctx, name, dt, n_steps, every, advance, step_drawer(ctx.rec, dt, state, log, observe))
 
 
-def simulate_method(ctx, name: str, model, state, dt: float, n_steps: int, method: str, every: int,
+def simulate_method(ctx, name: str, scene, state, dt: float, n_steps: int, method: str, every: int,
                     energy_bound: float | None = None, observe=None, log=None, fixed: bool = False,
                     label: str | None = None):
-    """Like :func:`simulate` for a ``method`` (a name) the lesson has already chosen, run by the
-    engine's many-steps kernel (small spring-only models; backward Euler on a chain such as the rod):
-    one launch per chunk of ``every`` steps, the energies of every step. The run is noted as
-    ``label`` (default: the method) and ``fixed`` or not. Returns (steps, kinetic, potential)."""
+    """Like :func:`simulate` for a ``method`` (a name) the lesson has already chosen, run by a
+    many-steps kernel: the engine's for a small spring-only Model, the scene's own ``run`` for the
+    rod (engine.scenes.Rod): one launch per chunk of ``every`` steps, the energies of every step.
+    The run is noted as ``label`` (default: the method) and ``fixed`` or not. Returns (steps,
+    kinetic, potential)."""
     ctx.note_integrator(name, label or method, fixed)
+    steps = getattr(scene, "run", None)
+    if steps is None:
+        def steps(st, h, chunk, meth, bound, step_offset):
+            return run_many_steps(scene, st, h, chunk, meth, bound, step_offset=step_offset)
 
     def advance(chunk, done):
-        K, W = run_many_steps(model, state, dt, chunk, method, energy_bound, step_offset=done)
+        K, W = steps(state, dt, chunk, method, energy_bound, step_offset=done)
         return np.arange(done + 1, done + chunk + 1), K, W
     return recorded_run(ctx, name, dt, n_steps, every, advance, step_drawer(ctx.rec, dt, state, log, observe))
 
 
 def recorded_run(ctx, name: str, dt: float, n_steps: int, every: int, advance, draw):
-    """The one lesson run: the engine's run loop (engine.integrators.run.run) in chunks of ``every``
+    """The one lesson run: the engine's run loop (engine.integrators.loop.run) in chunks of ``every``
     steps, with the run's energies sent to the recorder as they come, ``draw(step)`` after every
     chunk (and at 0), progress when it ends, and a blow-up drawn at its step, marked in the
     recording and re-raised."""

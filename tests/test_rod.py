@@ -31,19 +31,16 @@ def test_gradient_matches_central_differences_on_nonuniform_rod():
 
 
 def test_forces_are_minus_stiffness_times_displacement():
-    """The rod is linear in x, f = -K (x - p), for every state without an inverted segment (its springs
-    measure |x_{j+1} - x_j|, so a segment turned inside out would not be the notes' 1D rod)."""
+    """The rod is linear in x: f = -K (x - p) exactly."""
     rod, rng = random_rod(seed=3)
-    u = 0.001 * rng.standard_normal(rod.n)
-    assert np.all(np.diff(rod.p + u) > 0)
+    u = 0.01 * rng.standard_normal(rod.n)
     f = rod.forces(rod.p + u)
     assert np.max(np.abs(f + rod.stiffness_matrix() @ u)) < 1e-12 * np.max(np.abs(f))
 
 
 def test_energy_is_sum_of_segment_energies():
     rod, rng = random_rod(seed=4)
-    x = rod.p + 0.001 * rng.standard_normal(rod.n)
-    assert np.all(np.diff(x) > 0)  # no inverted segment (the springs measure |x_{j+1} - x_j|)
+    x = rod.p + 0.01 * rng.standard_normal(rod.n)
     s = np.diff(x) / rod.h - 1
     assert rod.energy(x) == pytest.approx(np.sum(0.5 * rod.E * s * s * rod.h), rel=1e-13)
 
@@ -134,26 +131,21 @@ from engine.theory.schemes import ModalReference, amplification  # noqa: E402
 @pytest.mark.parametrize("method", list(METHODS))
 @pytest.mark.parametrize("pinned", [(), (0,), (0, 25, 59)])
 def test_kernel_equals_the_schemes_modal_theory(method, pinned):
-    """Every integrator of the rod kernel is, mode by mode, its 2x2 amplification matrix (while no
-    segment inverts: forward Euler's growth, up to ~1.9x per step here, is followed for 9 steps of a
-    small start)."""
+    """Every integrator of the rod kernel is, mode by mode, its 2x2 amplification matrix."""
     rod, rng = random_rod(seed=8)
     rod = Rod(rod.p, rod.E, rod.rho, pinned)
-    a = 3e-5 if method == "forward-euler" else 1e-3
-    u0, v0 = a * rng.standard_normal(rod.n), a * rng.standard_normal(rod.n)
+    u0, v0 = 1e-3 * rng.standard_normal(rod.n), 1e-3 * rng.standard_normal(rod.n)
     u0[list(pinned)] = 0.0
     v0[list(pinned)] = 0.0
     dt = 0.8 * rod.stable_dt()
     st = rod.new_state(u0, v0)
-    n1, n2 = (6, 3) if method == "forward-euler" else (40, 17)
-    rod.run(st, dt, n1, method)
-    rod.run(st, dt, n2, method)  # two launches: a chunked run is the same run
-    assert np.all(np.diff(st.positions()) > 0)
+    rod.run(st, dt, 40, method)
+    rod.run(st, dt, 17, method)  # two launches: a chunked run is the same run
     ref = ModalReference(rod, u0, v0, dt, method)
-    u, v = ref.displacement(n1 + n2), ref.velocity(n1 + n2)
+    u, v = ref.displacement(57), ref.velocity(57)
     assert np.max(np.abs(st.displacement(rod) - u)) < 1e-11 * np.max(np.abs(u))
     assert np.max(np.abs(st.velocity() - v)) < 1e-11 * np.max(np.abs(v))
-    np.testing.assert_allclose(ref.displacements([0, 5, n1 + n2, n1 + n2]), [u0, ref.displacement(5), u, u],
+    np.testing.assert_allclose(ref.displacements([0, 20, 57, 57]), [u0, ref.displacement(20), u, u],
                                rtol=0, atol=1e-13 * np.max(np.abs(u)))
 
 

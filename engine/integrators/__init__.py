@@ -3,7 +3,7 @@
 
 Every integrator has ``name``, ``implicit``, ``step(model, state, dt, n_steps=1, monitor=None)`` and
 ``begin(model, state)`` / ``advance(model, state, dt)`` (one step), which the one run loop
-(:mod:`engine.integrators.run`) drives. Further integrators join with :func:`register`.
+(:mod:`engine.integrators.loop`) drives. Further integrators join with :func:`register`.
 ``backward-euler`` (:mod:`engine.integrators.implicit`, default linear solver PCG) is registered
 here; use :func:`make_integrator` to get one with other options (``--solver``, ``--tol``, Newton
 iterations). :data:`METHODS` is the one table of method codes the many-steps kernels use.

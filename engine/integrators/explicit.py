@@ -2,7 +2,7 @@
 
 The update formulas (E1)-(E3) are written once, in :mod:`engine.integrators.kernels`. Each
 integrator has ``step(model, state, dt, n_steps=1, monitor=None)`` and ``begin``/``advance`` for
-Python-driven runs (:mod:`engine.integrators.run`). Which kernels a step launches is decided by a
+Python-driven runs (:mod:`engine.integrators.loop`). Which kernels a step launches is decided by a
 planner from the model's energies (:func:`one_launch_plan`, :func:`many_steps_plan`): a springs
 [+ one hinge energy] model takes one launch per symplectic-Euler step, a small spring-only model
 many steps per launch; anything else the generic path (each energy's force kernels, then one
@@ -288,7 +288,7 @@ def run(model: Model, state: State, dt: float, n_steps: int, integrator="symplec
 
     Returns the total energies at the checks (numpy, one per check)."""
     from engine.integrators import get
-    from engine.integrators.run import model_stepper, run as run_loop
+    from engine.integrators.loop import model_stepper, run as run_loop
 
     integ = get(integrator) if isinstance(integrator, str) else integrator
     dt = float(dt)

@@ -21,15 +21,17 @@ vertices and a = 0, v = 0 for pinned ones (inverse mass 0):
   serialised, every inner loop serial), writing each step's kinetic and potential energy and
   stopping at the first step whose total is not finite or above the bound. For small models
   (chains, frames, the rod) where launches would cost more than the arithmetic; on a chain it
-  also takes backward-Euler steps (engine.solvers.thomas).
+  also takes backward-Euler steps (engine.solvers.thomas);
+* :func:`axial_steps` - the same for the rod along its axis, one coordinate per node.
 
 Method codes: :data:`METHODS` is the one table of them.
 """
 import taichi as ti
 
+from engine.energies.axial import axial_force, axial_potential
 from engine.energies.bending import hinge_force_vectors, hinge_gather
 from engine.energies.springs import spring_gather
-from engine.solvers.thomas import chain_backward_euler
+from engine.solvers.thomas import axial_backward_euler, chain_backward_euler
 from engine.fields import edge_array, int_array, mat3_array, scalar_array, vec3_array, vec3_array2
 from engine.fields import int_array2 as hinge_array
 
@@ -48,15 +50,16 @@ ACCEL_KICK = 4  # (E3) a = M^-1 f + g ; v += h a  (h = dt/2; h = 0 only computes
 
 @ti.func
 def update(method: ti.template(), phase: ti.template(), i, x: ti.template(), v: ti.template(), f_i,
-           a: ti.template(), inv_mass: ti.template(), g, dt):
+           a: ti.template(), inv_mass: ti.template(), g, dt, zero):
     """The per-vertex update of vertex i: (E1), (E2) or a half of (E3) (see the phase codes).
-    ``f_i`` is the force on vertex i; pinned vertices (inv_mass 0) keep x and get v = 0."""
+    ``f_i`` is the force on vertex i; pinned vertices (inv_mass 0) keep x and get v = ``zero`` (a
+    vec3 for the 3D models, a scalar for the rod along its axis)."""
     if ti.static(method == FORWARD_EULER):
         if inv_mass[i] > 0.0:
             x[i] += dt * v[i]
             v[i] += dt * (inv_mass[i] * f_i + g)
         else:
-            v[i] = ti.math.vec3(0.0)
+            v[i] = zero
     elif ti.static(method == SYMPLECTIC_EULER):
         if ti.static(phase == DRIFT):
             if inv_mass[i] > 0.0:
@@ -67,27 +70,27 @@ def update(method: ti.template(), phase: ti.template(), i, x: ti.template(), v: 
                 if ti.static(phase == STEP):
                     x[i] += dt * v[i]
             else:
-                v[i] = ti.math.vec3(0.0)
+                v[i] = zero
     elif ti.static(phase == KICK_DRIFT):
         if inv_mass[i] > 0.0:
             v[i] += 0.5 * dt * a[i]
             x[i] += dt * v[i]
         else:
-            v[i] = ti.math.vec3(0.0)
+            v[i] = zero
     else:  # ACCEL_KICK, dt = the half step
         if inv_mass[i] > 0.0:
             a[i] = inv_mass[i] * f_i + g
             v[i] += dt * a[i]
         else:
-            a[i] = ti.math.vec3(0.0)
-            v[i] = ti.math.vec3(0.0)
+            a[i] = zero
+            v[i] = zero
 
 
 @ti.kernel
 def update_kernel(x: vec3_array, v: vec3_array, f: vec3_array, a: vec3_array, inv_mass: scalar_array,
                   g: ti.math.vec3, dt: float, method: ti.template(), phase: ti.template()):
     for i in range(x.shape[0]):
-        update(method, phase, i, x, v, f[i], a, inv_mass, g, dt)
+        update(method, phase, i, x, v, f[i], a, inv_mass, g, dt, ti.math.vec3(0.0))
 
 
 @ti.kernel
@@ -104,9 +107,9 @@ def one_launch_step(x: vec3_array, v: vec3_array, inv_mass: scalar_array, g: ti.
         f += spring_gather(x, i, offsets, inc_other, inc_inv_L, inc_c_over_L)
         if ti.static(with_hinges):
             f += hinge_gather(fh, h_offsets, h_entries, i)
-        update(SYMPLECTIC_EULER, KICK, i, x, v, f, v, inv_mass, g, dt)
+        update(SYMPLECTIC_EULER, KICK, i, x, v, f, v, inv_mass, g, dt, ti.math.vec3(0.0))
     for i in range(x.shape[0]):
-        update(SYMPLECTIC_EULER, DRIFT, i, x, v, f_zero(), v, inv_mass, g, dt)
+        update(SYMPLECTIC_EULER, DRIFT, i, x, v, f_zero(), v, inv_mass, g, dt, ti.math.vec3(0.0))
 
 
 @ti.func
@@ -161,28 +164,71 @@ def many_steps(x: vec3_array, v: vec3_array, f: vec3_array, a: vec3_array,
         for _ in range(1):
             _spring_forces(x, offsets, inc_other, inc_inv_L, inc_c_over_L, f)
             for i in range(n):
-                update(VELOCITY_VERLET, ACCEL_KICK, i, x, v, f[i], a, inv_mass, g, 0.0)
+                update(VELOCITY_VERLET, ACCEL_KICK, i, x, v, f[i], a, inv_mass, g, 0.0, ti.math.vec3(0.0))
     ti.loop_config(serialize=True)
     for s in range(n_steps):
         if ti.static(method == VELOCITY_VERLET):
             for i in range(n):
-                update(VELOCITY_VERLET, KICK_DRIFT, i, x, v, f[i], a, inv_mass, g, dt)
+                update(VELOCITY_VERLET, KICK_DRIFT, i, x, v, f[i], a, inv_mass, g, dt, ti.math.vec3(0.0))
             _spring_forces(x, offsets, inc_other, inc_inv_L, inc_c_over_L, f)
             for i in range(n):
-                update(VELOCITY_VERLET, ACCEL_KICK, i, x, v, f[i], a, inv_mass, g, 0.5 * dt)
+                update(VELOCITY_VERLET, ACCEL_KICK, i, x, v, f[i], a, inv_mass, g, 0.5 * dt, ti.math.vec3(0.0))
         elif ti.static(method == BACKWARD_EULER):
             _spring_forces(x, offsets, inc_other, inc_inv_L, inc_c_over_L, f)
             chain_backward_euler(x, v, f, offsets, inc_other, inc_inv_L, inc_c_over_L, mass, inv_mass, g, dt, Cp, Dp)
         else:
             _spring_forces(x, offsets, inc_other, inc_inv_L, inc_c_over_L, f)
             for i in range(n):
-                update(method, STEP, i, x, v, f[i], a, inv_mass, g, dt)
+                update(method, STEP, i, x, v, f[i], a, inv_mass, g, dt, ti.math.vec3(0.0))
         K = _kinetic(v, mass)
         W = _potential(x, edges, L, c, n_edges, mass, inv_mass, g)
         kin[s] = K
         pot[s] = W
         E = K + W
         if not (E <= bound) or E - E != 0.0:  # above the bound, nan, or +-inf
+            done = s
+            break
+    return done
+
+
+@ti.kernel
+def axial_steps(x: scalar_array, v: scalar_array, a: scalar_array, h: scalar_array, E: scalar_array,
+                m: scalar_array, inv_m: scalar_array, dt: float, n_steps: ti.i32, kin: scalar_array,
+                pot: scalar_array, bound: float, Cp: scalar_array, Dp: scalar_array, method: ti.template()) -> ti.i32:
+    """:func:`many_steps` for the rod along its axis (engine.energies.axial (R1), one coordinate per
+    node, no gravity): the same updates, backward Euler by the scalar Thomas solve. Returns n_steps,
+    or the index of the first step whose K + W is above ``bound`` or not finite."""
+    n = x.shape[0]
+    done = n_steps
+    if ti.static(method == VELOCITY_VERLET):  # a(x) of the starting state
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            for i in range(n):
+                update(VELOCITY_VERLET, ACCEL_KICK, i, x, v, axial_force(x, h, E, i, n), a, inv_m, 0.0, 0.0, 0.0)
+    ti.loop_config(serialize=True)
+    for s in range(n_steps):
+        if ti.static(method == VELOCITY_VERLET):
+            for i in range(n):
+                update(VELOCITY_VERLET, KICK_DRIFT, i, x, v, 0.0, a, inv_m, 0.0, dt, 0.0)
+            for i in range(n):
+                a[i] = axial_force(x, h, E, i, n)
+            for i in range(n):
+                update(VELOCITY_VERLET, ACCEL_KICK, i, x, v, a[i], a, inv_m, 0.0, 0.5 * dt, 0.0)
+        elif ti.static(method == BACKWARD_EULER):
+            axial_backward_euler(x, v, h, E, m, inv_m, dt, Cp, Dp)
+        else:
+            for i in range(n):
+                Cp[i] = axial_force(x, h, E, i, n)
+            for i in range(n):
+                update(method, STEP, i, x, v, Cp[i], a, inv_m, 0.0, dt, 0.0)
+        K = 0.0
+        for i in range(n):
+            K += 0.5 * m[i] * v[i] * v[i]
+        W = axial_potential(x, h, E, n)
+        kin[s] = K
+        pot[s] = W
+        total = K + W
+        if not (total <= bound) or total - total != 0.0:  # above the bound, nan, or +-inf
             done = s
             break
     return done

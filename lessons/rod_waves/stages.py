@@ -59,7 +59,7 @@ def simulate(ctx, name: str, rod: Rod, state, dt: float, n_steps: int, method: s
         rec.rod(x, rod.p, rod_node_strain(x, rod.p), gain=gain)
 
     on_state = (lambda step, st: observe(step, step * dt, st.displacement(rod))) if observe else None
-    _, K, W = simulate_method(ctx, name, rod.model, state, dt, n_steps, method, every or ctx.cfg.record_every,
+    _, K, W = simulate_method(ctx, name, rod, state, dt, n_steps, method, every or ctx.cfg.record_every,
                               energy_bound, observe=on_state, log=log, fixed=fixed, label=method_label(method))
     return K, W
 
