@@ -25,6 +25,20 @@ int_array2 = ti.types.ndarray(dtype=ti.i32, ndim=2)
 edge_array = ti.types.ndarray(dtype=ti.math.ivec2, ndim=1)
 
 
+# -- set-up arrays (numpy) -------------------------------------------------------------------
+
+def per_item(name: str, value, count: int) -> np.ndarray:
+    """A float64 array of ``count`` values from a scalar or a (count,) array (a copy); ModelError
+    (one line, naming ``name``) for any other shape."""
+    from engine.errors import ModelError
+    arr = np.asarray(value, dtype=np.float64)
+    if arr.ndim == 0:
+        return np.full(count, float(arr))
+    if arr.shape != (count,):
+        raise ModelError(f"{name} must be a scalar or have shape ({count},), got {arr.shape}")
+    return arr.copy()
+
+
 # -- ndarray constructors --------------------------------------------------------------------
 
 def float_dtype() -> type:

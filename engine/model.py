@@ -22,7 +22,8 @@ import taichi as ti
 from engine.energies.base import Energy
 from engine.energies.springs import SpringEnergy
 from engine.errors import ModelError
-from engine.fields import copy_vec3, float_dtype, scalar_array, scalar_ndarray, vec3_array, vec3_ndarray, zero_vec3
+from engine.fields import (copy_vec3, float_dtype, per_item, scalar_array, scalar_ndarray, vec3_array, vec3_ndarray,
+                           zero_vec3)
 
 
 # --------------------------------------------------------------------------------------------
@@ -108,15 +109,6 @@ class State:
 # Model
 # --------------------------------------------------------------------------------------------
 
-def _as_vertex_array(name: str, value, n: int) -> np.ndarray:
-    arr = np.asarray(value, dtype=np.float64)
-    if arr.ndim == 0:
-        return np.full(n, float(arr))
-    if arr.shape != (n,):
-        raise ModelError(f"{name} must be a scalar or have shape ({n},), got {arr.shape}")
-    return arr.copy()
-
-
 class Model:
     """Static description of a particle system: rest positions, lumped masses, pins, gravity
     and a list of :class:`Energy` objects.
@@ -183,7 +175,7 @@ class Model:
                     raise ModelError(f"pin index {int(p[out[0]])} is out of range 0..{n - 1}")
                 pinned_mask[p.astype(np.int64)] = True
 
-        m = _as_vertex_array("mass", mass, n)
+        m = per_item("mass", mass, n)
         bad = np.flatnonzero(~np.isfinite(m) | (m < 0))
         if bad.size:
             raise ModelError(f"vertex {bad[0]} has invalid mass {float(m[bad[0]])!r} (must be finite and >= 0)")

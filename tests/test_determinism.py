@@ -10,7 +10,7 @@ Measured and asserted:
 
 - 1 thread: every phase is bitwise reproducible.
 - 2 threads, explicit: bitwise reproducible, and bitwise equal to 1 thread. Forces are per-vertex
-  gathers over CSR incidences, updates are per vertex: no float atomics (DESIGN section 4).
+  gathers over CSR incidences, updates are per vertex: no float atomics, so every sum runs in a fixed order.
 - implicit, 1 vs 2 threads: NOT bitwise equal. Parallel float reductions (`s += ...` in a
   parallel loop: the PCG restart's r.z and |r|^2, the residual and energy kernels) are summed
   per task and tasks are ceil(n / block_dim) with an adaptive block_dim that depends on the

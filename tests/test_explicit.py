@@ -220,7 +220,7 @@ def test_symplectic_euler_stable_just_below_the_cfl_limit():
 
 
 def test_rod_gershgorin_dt_is_h_over_c():
-    """1D rod, c = k L per spring, m = rho h: the CFL limit dt = h / sqrt(E/rho) (DESIGN.md 6)."""
+    """1D rod, c = k L per spring, m = rho h: the CFL limit dt = h / sqrt(E/rho) (the 1D wave equation's CFL limit)."""
     h, k, m = 0.05, 100.0, 0.2
     model = rod(h=h, k=k, m=m)
     E, rho = k, m / h  # c_e = k h = E A with A = 1, m = rho h

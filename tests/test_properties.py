@@ -4,7 +4,7 @@ Every example is a jittered right-triangle grid of random size (2..5 x 2..5 vert
 three diagonal patterns, random cell shape), optionally curved out of plane as its rest shape
 (bending then measures its rest angles on it), with random stiffness and a random deformation
 (in-plane and out-of-plane noise plus a smooth bend). For the spring energy and every bending
-variant (notes, bridson, discrete-shells) the checks are those of DESIGN section 3:
+variant (notes, bridson, discrete-shells) the checks every energy must pass:
 
 - the energy and every per-element energy are >= 0, > 0 when deformed, ~0 at rest (also
   after a rigid motion of the rest shape), and the forces vanish at rest;

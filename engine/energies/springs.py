@@ -43,8 +43,8 @@ import taichi as ti
 from engine import geometry
 from engine.energies.base import Energy
 from engine.errors import ModelError
-from engine.fields import (edge_array, float_dtype, int_array, int_ndarray, mat3_array, scalar_array, scalar_ndarray,
-                           vec3_array)
+from engine.fields import (edge_array, float_dtype, int_array, int_ndarray, mat3_array, per_item, scalar_array,
+                           scalar_ndarray, vec3_array)
 
 
 # --------------------------------------------------------------------------------------------
@@ -222,15 +222,6 @@ def dense_hessian_from_blocks(n: int, edges: np.ndarray, blocks: np.ndarray) -> 
     return H
 
 
-def _per_edge(name: str, value, m: int) -> np.ndarray:
-    arr = np.asarray(value, dtype=np.float64)
-    if arr.ndim == 0:
-        return np.full(m, float(arr))
-    if arr.shape != (m,):
-        raise ModelError(f"{name} must be a scalar or have shape ({m},), got {arr.shape}")
-    return arr.copy()
-
-
 # --------------------------------------------------------------------------------------------
 # Energy object
 # --------------------------------------------------------------------------------------------
@@ -262,8 +253,8 @@ class SpringEnergy(Energy):
             raise ModelError(f"edges must be an integer array of shape (m, 2), got {edges.dtype} {edges.shape}")
         edges = edges.astype(np.int64)
         m = len(edges)
-        L = _per_edge("rest lengths L", L, m)
-        c = _per_edge(coef_name, c, m)
+        L = per_item("rest lengths L", L, m)
+        c = per_item(coef_name, c, m)
         if X is None:
             X = np.zeros((n_vertices, 3))
             X[:, 0] = np.arange(n_vertices)  # distinct dummy points: rest-point check not applicable
@@ -321,9 +312,9 @@ class SpringEnergy(Energy):
             raise ModelError(f"edge {e} = ({edges[e, 0]}, {edges[e, 1]}) has a vertex index out of range 0..{n - 1}")
         if L is None:
             L = np.linalg.norm(X[edges[:, 0]] - X[edges[:, 1]], axis=1) if m else np.zeros(0)
-        L = _per_edge("rest lengths L", L, m)
+        L = per_item("rest lengths L", L, m)
         if k is not None:
-            kk = _per_edge("k", k, m)
+            kk = per_item("k", k, m)
             # validate k itself so that the message names k; then c = k L
             bad = np.flatnonzero(~np.isfinite(kk) | (kk <= 0))
             if bad.size:
@@ -332,7 +323,7 @@ class SpringEnergy(Energy):
                                  f"(must be finite and > 0)")
             c, name = kk * L, "c=k*L"
         else:
-            c, name = _per_edge("c", c, m), "c"
+            c, name = per_item("c", c, m), "c"
         validate_springs(X, edges, c, L, name)
         return edges, L, c, name
 
@@ -345,7 +336,7 @@ class SpringEnergy(Energy):
 
     def set_coefficients(self, c) -> None:
         """Replace the per-edge coefficients c_e (e.g. another Young's modulus) without rebuilding."""
-        c = _per_edge("c", c, self.m)
+        c = per_item("c", c, self.m)
         bad = np.flatnonzero(~np.isfinite(c) | (c <= 0))
         if bad.size:
             e = bad[0]

@@ -147,6 +147,26 @@ def _kinetic(v: ti.template(), mass: ti.template()) -> float:
     return T
 
 
+@ti.func
+def _axial_kinetic(v: ti.template(), m: ti.template()) -> float:
+    K = 0.0
+    for i in range(v.shape[0]):
+        K += 0.5 * m[i] * v[i] * v[i]
+    return K
+
+
+@ti.func
+def _record(kin: ti.template(), pot: ti.template(), s, K, W, bound) -> ti.i32:
+    """Write step s's energies; 1 when their total marks a blow-up (above the bound, nan or +-inf)."""
+    kin[s] = K
+    pot[s] = W
+    E = K + W
+    bad = 0
+    if not (E <= bound) or E - E != 0.0:
+        bad = 1
+    return bad
+
+
 @ti.kernel
 def many_steps(x: vec3_array, v: vec3_array, f: vec3_array, a: vec3_array,
                offsets: int_array, inc_other: int_array, inc_inv_L: scalar_array,
@@ -180,12 +200,7 @@ def many_steps(x: vec3_array, v: vec3_array, f: vec3_array, a: vec3_array,
             _spring_forces(x, offsets, inc_other, inc_inv_L, inc_c_over_L, f)
             for i in range(n):
                 update(method, STEP, i, x, v, f[i], a, inv_mass, g, dt, ti.math.vec3(0.0))
-        K = _kinetic(v, mass)
-        W = _potential(x, edges, L, c, n_edges, mass, inv_mass, g)
-        kin[s] = K
-        pot[s] = W
-        E = K + W
-        if not (E <= bound) or E - E != 0.0:  # above the bound, nan, or +-inf
+        if _record(kin, pot, s, _kinetic(v, mass), _potential(x, edges, L, c, n_edges, mass, inv_mass, g), bound):
             done = s
             break
     return done
@@ -221,14 +236,7 @@ def axial_steps(x: scalar_array, v: scalar_array, a: scalar_array, h: scalar_arr
                 Cp[i] = axial_force(x, h, E, i, n)
             for i in range(n):
                 update(method, STEP, i, x, v, Cp[i], a, inv_m, 0.0, dt, 0.0)
-        K = 0.0
-        for i in range(n):
-            K += 0.5 * m[i] * v[i] * v[i]
-        W = axial_potential(x, h, E, n)
-        kin[s] = K
-        pot[s] = W
-        total = K + W
-        if not (total <= bound) or total - total != 0.0:  # above the bound, nan, or +-inf
+        if _record(kin, pot, s, _axial_kinetic(v, m), axial_potential(x, h, E, n), bound):
             done = s
             break
     return done
