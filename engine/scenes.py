@@ -16,10 +16,11 @@ c_j = E_j h_j, so the spring energy (S1) is the notes' "1D continuum potential"
 
 and the spring force (S2) along the axis is f_i = E_i s_i - E_{i-1} s_{i-1} (s_j the strain), which
 divided by the lumped mass m_i = (rho_{i-1} h_{i-1} + rho_i h_i)/2 is the finite-difference stencil
-of (1/rho) d/dp (E (dx/dp - 1)) (notes, "From last class"). A rod is small, so a run is one
-many-steps kernel launch (engine.integrators.kernels.many_steps), backward Euler included (one
-block-tridiagonal solve per step, engine.solvers.thomas). Theory of the schemes on the rod:
-engine.theory.schemes.
+of (1/rho) d/dp (E (dx/dp - 1)) (notes, "From last class"). The nodes move along the axis only, so
+the rod is stepped in that one coordinate (engine.energies.axial): a run is one launch of
+engine.integrators.kernels.axial_steps, the same explicit updates as every model, backward Euler by
+the tridiagonal solve of engine.solvers.thomas. ``Rod.model`` is the same rod as a 3D chain Model
+(for the general solvers). Theory of the schemes on the rod: engine.theory.schemes.
 """
 from dataclasses import dataclass
 

@@ -20,9 +20,9 @@ vertices and a = 0, v = 0 for pinned ones (inverse mass 0):
 * :func:`many_steps` - many steps of a spring-only model in ONE launch (the step loop
   serialised, every inner loop serial), writing each step's kinetic and potential energy and
   stopping at the first step whose total is not finite or above the bound. For small models
-  (chains, frames, the rod) where launches would cost more than the arithmetic; on a chain it
-  also takes backward-Euler steps (engine.solvers.thomas);
-* :func:`axial_steps` - the same for the rod along its axis, one coordinate per node.
+  (chains, frames) where launches would cost more than the arithmetic;
+* :func:`axial_steps` - the same for the rod along its axis, one coordinate per node, backward
+  Euler included (engine.solvers.thomas).
 
 Method codes: :data:`METHODS` is the one table of them.
 """
@@ -31,8 +31,8 @@ import taichi as ti
 from engine.energies.axial import axial_force, axial_potential
 from engine.energies.bending import hinge_force_vectors, hinge_gather
 from engine.energies.springs import spring_gather
-from engine.solvers.thomas import axial_backward_euler, chain_backward_euler
-from engine.fields import edge_array, int_array, mat3_array, scalar_array, vec3_array, vec3_array2
+from engine.solvers.thomas import axial_backward_euler
+from engine.fields import edge_array, int_array, scalar_array, vec3_array, vec3_array2
 from engine.fields import int_array2 as hinge_array
 
 FORWARD_EULER, SYMPLECTIC_EULER, VELOCITY_VERLET, BACKWARD_EULER = 0, 1, 2, 3
@@ -173,10 +173,9 @@ def many_steps(x: vec3_array, v: vec3_array, f: vec3_array, a: vec3_array,
                inc_c_over_L: scalar_array, edges: edge_array, L: scalar_array, c: scalar_array,
                n_edges: ti.i32, mass: scalar_array, inv_mass: scalar_array, g: ti.math.vec3,
                dt: float, n_steps: ti.i32, kin: scalar_array, pot: scalar_array, bound: float,
-               Cp: mat3_array, Dp: vec3_array, method: ti.template()) -> ti.i32:
+               method: ti.template()) -> ti.i32:
     """Advance ``n_steps`` steps of a spring-only model; kin[s], pot[s] = energies after step s.
-    Returns n_steps, or the index s of the first step whose K + W is above ``bound`` or not finite.
-    Backward Euler only for chains (engine.solvers.thomas (T1); Cp, Dp its work arrays)."""
+    Returns n_steps, or the index s of the first step whose K + W is above ``bound`` or not finite."""
     n = x.shape[0]
     done = n_steps
     if ti.static(method == VELOCITY_VERLET):  # a(x) of the starting state
@@ -193,9 +192,6 @@ def many_steps(x: vec3_array, v: vec3_array, f: vec3_array, a: vec3_array,
             _spring_forces(x, offsets, inc_other, inc_inv_L, inc_c_over_L, f)
             for i in range(n):
                 update(VELOCITY_VERLET, ACCEL_KICK, i, x, v, f[i], a, inv_mass, g, 0.5 * dt, ti.math.vec3(0.0))
-        elif ti.static(method == BACKWARD_EULER):
-            _spring_forces(x, offsets, inc_other, inc_inv_L, inc_c_over_L, f)
-            chain_backward_euler(x, v, f, offsets, inc_other, inc_inv_L, inc_c_over_L, mass, inv_mass, g, dt, Cp, Dp)
         else:
             _spring_forces(x, offsets, inc_other, inc_inv_L, inc_c_over_L, f)
             for i in range(n):

@@ -1,1 +1,1 @@
-"""Linear solvers of the implicit steps that are not in engine/linalg.py (the chain solve of the rod)."""
+"""Linear solvers of the implicit steps that are not in engine/linalg.py (the rod's tridiagonal solve)."""

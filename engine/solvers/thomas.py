@@ -1,68 +1,18 @@
-"""Backward Euler on a chain, by the block Thomas algorithm (the rod's tridiagonal solve).
+"""Backward Euler on the rod, by the Thomas algorithm (the rod's tridiagonal solve).
 
-On a chain (vertex i joined only to i - 1 and i + 1, as the rod of the notes' first slides), one
-backward-Euler step linearised at x_n (Baraff & Witkin's step, exact for the rod's linear spring
-forces along its axis) is the block-tridiagonal system
+The rod (engine.energies.axial) is linear along its axis, so one backward-Euler step is exactly one
+solve of the tridiagonal system
 
-    (M + dt^2 H(x_n)) v+ = M v_n + dt (f(x_n) + M g),     x+ = x_n + dt v+                   (T1)
+    (M + dt^2 K) v+ = M v_n + dt f(x_n),     x+ = x_n + dt v+                                 (T1)
 
-with H the PSD spring Hessian (engine/energies/springs.py (S4)): row i has the diagonal block
-m_i I + dt^2 sum_{e ~ i} K_e and the off-diagonal blocks -dt^2 K_e towards i - 1 and i + 1; a pinned
-vertex's row is v = 0. The Thomas algorithm eliminates forward (C'_i = D_i^-1 C_i, d'_i = D_i^-1
-(d_i - A_i d'_{i-1}), D_i = B_i - A_i C'_{i-1}) and substitutes backward (v_i = d'_i - C'_i v_{i+1}):
-O(n) work, serial, inside the many-steps kernel so a whole run is one launch. Along the axis of a
-straight chain (the rod, engine.energies.axial) the blocks are the scalars k_j = E_j / h_j and
-:func:`axial_backward_euler` is the same elimination on them.
+with K the stiffness k_j = E_j / h_j of each segment on its two nodes (a pinned node's row is
+v = 0). The Thomas algorithm eliminates forward (c'_i = c_i / d_i, d'_i = (d_i - a_i d'_{i-1}) /
+d_i with d_i = b_i - a_i c'_{i-1}) and substitutes backward (v_i = d'_i - c'_i v_{i+1}): O(n) work,
+serial, inside the many-steps kernel so a whole run is one launch.
 """
 import taichi as ti
 
 from engine.energies.axial import axial_force
-from engine.energies.springs import spring_block
-
-
-@ti.func
-def chain_backward_euler(x: ti.template(), v: ti.template(), f: ti.template(), offsets: ti.template(),
-                         inc_other: ti.template(), inc_inv_L: ti.template(), inc_c_over_L: ti.template(),
-                         mass: ti.template(), inv_mass: ti.template(), g, dt, Cp: ti.template(), Dp: ti.template()):
-    """One step (T1) of a chain; ``f`` holds the spring forces at x_n; Cp (mat3), Dp (vec3) are work."""
-    n = x.shape[0]
-    dt2 = dt * dt
-    I3 = ti.Matrix.identity(float, 3)
-    for i in range(n):  # forward elimination, in vertex order
-        A = ti.math.mat3(0.0)
-        B = I3
-        C = ti.math.mat3(0.0)
-        d = ti.math.vec3(0.0)
-        if inv_mass[i] > 0.0:
-            B = mass[i] * I3
-            d = mass[i] * v[i] + dt * (f[i] + mass[i] * g)
-            for k in range(offsets[i], offsets[i + 1]):
-                j = inc_other[k]
-                K = dt2 * spring_block(x[i] - x[j], inc_inv_L[k], inc_c_over_L[k], 1)
-                B += K
-                if j == i - 1:
-                    A = -K
-                elif j == i + 1:
-                    C = -K
-        if i == 0:
-            Binv = B.inverse()
-            Cp[i] = Binv @ C
-            Dp[i] = Binv @ d
-        else:
-            Dinv = (B - A @ Cp[i - 1]).inverse()
-            Cp[i] = Dinv @ C
-            Dp[i] = Dinv @ (d - A @ Dp[i - 1])
-    for k in range(n):  # back substitution
-        i = n - 1 - k
-        vi = Dp[i]
-        if i < n - 1:
-            vi -= Cp[i] @ v[i + 1]
-        v[i] = vi
-    for i in range(n):
-        if inv_mass[i] > 0.0:
-            x[i] += dt * v[i]
-        else:
-            v[i] = ti.math.vec3(0.0)
 
 
 @ti.func
