@@ -17,18 +17,11 @@ from engine.energies.bending import BendingEnergy, BendingError, VARIANTS
 from engine.energies.base import Energy
 from engine.errors import ModelError
 from engine.fields import vec3_ndarray
+from lessons._measure import per_hinge_fd, random_rotation
 
 # --------------------------------------------------------------------------------------------
 # helpers
 # --------------------------------------------------------------------------------------------
-
-
-def random_rotation(rng) -> np.ndarray:
-    Q, R = np.linalg.qr(rng.normal(size=(3, 3)))
-    Q = Q * np.sign(np.diag(R))
-    if np.linalg.det(Q) < 0:
-        Q[:, 0] = -Q[:, 0]
-    return Q
 
 
 def analytic_hinge(theta, L=1.3, p0=0.4, r0=0.9, p1=0.8, r1=0.7):
@@ -56,19 +49,6 @@ def random_hinges(rng, m, max_angle=2.4):
                            p1=rng.uniform(-0.3, 1.3) * L, r1=rng.uniform(0.3, 1.2) * L)
         out.append(P @ random_rotation(rng).T + rng.normal(size=3))
     return stacked(out)
-
-
-def per_hinge_fd(fun, X, eps):
-    """Central differences of a per-hinge function for stacked hinges: (m, 4, 3)."""
-    m = len(X) // 4
-    G = np.zeros((m, 4, 3))
-    for a in range(4):
-        for c in range(3):
-            Xp, Xm = X.copy(), X.copy()
-            Xp[a::4, c] += eps
-            Xm[a::4, c] -= eps
-            G[:, a, c] = (fun(Xp) - fun(Xm)) / (2 * eps)
-    return G
 
 
 def per_hinge_hessian_fd(fun, X, eps):

@@ -1,9 +1,9 @@
 """Time integrators picked by name, so lessons, CLI and benchmarks can all say
 ``--integrator symplectic-euler``.
 
-Every integrator has ``name``, ``implicit``, ``step(model, state, dt, n_steps=1, monitor=None)`` and
+Every integrator has ``name``, ``implicit``, ``step(model, state, dt, n_steps=1)`` and
 ``begin(model, state)`` / ``advance(model, state, dt)`` (one step), which the one run loop
-(:mod:`engine.integrators.loop`) drives. Further integrators join with :func:`register`.
+(:mod:`engine.integrators.loop`) drives, watching energies and blow-ups with its Monitor. Further integrators join with :func:`register`.
 ``backward-euler`` (:mod:`engine.integrators.implicit`, default linear solver PCG) is registered
 here; use :func:`make_integrator` to get one with other options (``--solver``, ``--tol``, Newton
 iterations). :data:`METHODS` is the one table of method codes the many-steps kernels use.

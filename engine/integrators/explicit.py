@@ -1,7 +1,7 @@
 """Explicit time integrators: forward Euler, symplectic Euler, velocity Verlet.
 
 The update formulas (E1)-(E3) are written once, in :mod:`engine.integrators.kernels`. Each
-integrator has ``step(model, state, dt, n_steps=1, monitor=None)`` and ``begin``/``advance`` for
+integrator has ``step(model, state, dt, n_steps=1)`` and ``begin``/``advance`` for
 Python-driven runs (:mod:`engine.integrators.loop`). Which kernels a step launches is decided by a
 planner from the model's energies (:func:`one_launch_plan`, :func:`many_steps_plan`): a springs
 [+ one hinge energy] model takes one launch per symplectic-Euler step, a small spring-only model
@@ -96,38 +96,22 @@ def _build_many_steps(model: Model):
         return None
     s = model.energies[0]
 
-    def steps(state, dt, n_steps, method, monitor: Monitor):
-        return _many_steps(model, s, state, dt, n_steps, method, monitor)
+    def steps(state, dt, n_steps, method, monitor: Monitor, step_offset: int):
+        return _many_steps(model, s, state, dt, n_steps, method, monitor, step_offset)
     return steps
 
 
-def many_steps_plan(model: Model, integrator=None):
-    """``run(state, dt, n_steps, monitor) -> (kinetic, potential)`` doing all steps in one launch, or
-    None when the model is not a small spring-only model or the integrator is not explicit."""
-    fn = _plan(model, "many_steps", _build_many_steps)
-    if fn is None or integrator is None:
-        return fn if integrator is None else None
+def many_steps_plan(model: Model, integrator):
+    """``run(state, dt, n_steps, monitor, step_offset) -> (kinetic, potential)`` doing all steps of ``integrator`` in
+    one launch, or None when the model is not a small spring-only model or the integrator is not explicit."""
     name = getattr(integrator, "name", integrator)
-    if name not in K.EXPLICIT:
+    fn = _plan(model, "many_steps", _build_many_steps) if name in K.EXPLICIT else None
+    if fn is None:
         return None
-    return lambda state, dt, n_steps, monitor: fn(state, dt, n_steps, name, monitor)
+    return lambda state, dt, n_steps, monitor, step_offset: fn(state, dt, n_steps, name, monitor, step_offset)
 
 
-_buffers: dict[int, tuple] = {}
-
-
-def _energy_buffers(n: int):
-    """Reusable (kin, pot) ndarrays of at least n entries (chunked runs allocate nothing)."""
-    size = 1
-    while size < n:
-        size *= 2
-    buf = _buffers.get(size)
-    if buf is None:
-        buf = _buffers[size] = (ti.ndarray(dtype=float, shape=size), ti.ndarray(dtype=float, shape=size))
-    return buf
-
-
-def _many_steps(model, springs, state, dt, n_steps, method, monitor):
+def _many_steps(model, springs, state, dt, n_steps, method, monitor, step_offset=0):
     dt = float(dt)
     if not (math.isfinite(dt) and dt > 0):
         raise ValueError(f"dt must be > 0 and finite (got {dt!r})")
@@ -138,17 +122,11 @@ def _many_steps(model, springs, state, dt, n_steps, method, monitor):
         raise ValueError(f"state has {state.n} vertices, model has {model.n}")
     if n_steps == 0:
         return np.zeros(0), np.zeros(0)
-    kin, pot = _energy_buffers(n_steps)
+    kin, pot = K.energy_buffers(n_steps)
     done = K.many_steps(state.x, state.v, scratch_vec3(model, "explicit_f"), scratch_vec3(model, "explicit_a"),
                         *springs.force_args(), springs.edges, springs.L, springs.c, springs.m, model.mass_nd,
                         model.inv_mass_nd, model.gravity_vec, dt, n_steps, kin, pot, monitor.bound, K.METHODS[method])
-    taken = min(done + 1, n_steps)
-    kinetic = kin.to_numpy()[:taken].astype(np.float64)
-    potential = pot.to_numpy()[:taken].astype(np.float64)
-    state.t += dt * taken
-    if done < n_steps:
-        raise monitor.blow_up(int(done), state.t, float(kinetic[-1] + potential[-1]), kinetic, potential)
-    return kinetic, potential
+    return K.collect(kin, pot, done, n_steps, state, dt, monitor, step_offset)
 
 
 def run_many_steps(model: Model, state: State, dt: float, n_steps: int, method: str = "symplectic-euler",
@@ -165,8 +143,8 @@ def run_many_steps(model: Model, state: State, dt: float, n_steps: int, method: 
     if _signature(model) != ("springs",):
         raise ValueError(f"run_many_steps needs a spring-only model (exactly one spring energy, plus gravity and "
                          f"pins); this model has energies {[e.name for e in model.energies]}")
-    monitor = Monitor(method, dt, energy_bound, model=model, step_offset=step_offset)
-    return _many_steps(model, model.energies[0], state, dt, n_steps, method, monitor)
+    monitor = Monitor(method, dt, energy_bound, model=model)
+    return _many_steps(model, model.energies[0], state, dt, n_steps, method, monitor, step_offset)
 
 
 # --------------------------------------------------------------------------------------------
@@ -175,8 +153,7 @@ def run_many_steps(model: Model, state: State, dt: float, n_steps: int, method: 
 
 class ExplicitIntegrator:
     """Base: ``step(model, state, dt, n_steps)`` = ``begin`` once, then ``advance`` n_steps times
-    (with ``monitor``: the total energy checked after every step, blow-up raised at its step).
-    Work arrays are allocated once per model (here, not on the model), so stepping allocates nothing."""
+    (energies and blow-ups are watched by the run loop, engine.integrators.loop). Work arrays are allocated once per model (here, not on the model), so stepping allocates nothing."""
 
     name = "explicit"
     implicit = False
@@ -187,14 +164,11 @@ class ExplicitIntegrator:
     def advance(self, model: Model, state: State, dt: float) -> None:
         raise NotImplementedError
 
-    def step(self, model: Model, state: State, dt: float, n_steps: int = 1, monitor: Monitor | None = None) -> None:
-        from engine import diagnostics
+    def step(self, model: Model, state: State, dt: float, n_steps: int = 1) -> None:
         dt = float(dt)
         self.begin(model, state)
-        for s in range(int(n_steps)):
+        for _ in range(int(n_steps)):
             self.advance(model, state, dt)
-            if monitor is not None:
-                monitor.check(s, state.t, diagnostics.total_energy(model, state))
 
     def _elastic_forces(self, model: Model, state: State):
         f = scratch_vec3(model, "explicit_f")

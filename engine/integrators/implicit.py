@@ -200,13 +200,10 @@ class BackwardEuler:
     def begin(self, model: Model, state: State) -> None:
         """Nothing to prepare (kept for the integrator protocol)."""
 
-    def step(self, model: Model, state: State, dt: float, n_steps: int = 1, monitor=None) -> None:
-        from engine import diagnostics
+    def step(self, model: Model, state: State, dt: float, n_steps: int = 1) -> None:
         dt = float(dt)
-        for s in range(int(n_steps)):
+        for _ in range(int(n_steps)):
             self.advance(model, state, dt)
-            if monitor is not None:
-                monitor.check(s, state.t, diagnostics.total_energy(model, state))
 
     # -- one step ------------------------------------------------------------------------------
     def _objective(self, model, x, xn, v, dt, W_n, work) -> float:

@@ -26,6 +26,7 @@ vertices and a = 0, v = 0 for pinned ones (inverse mass 0):
 
 Method codes: :data:`METHODS` is the one table of them.
 """
+import numpy as np
 import taichi as ti
 
 from engine.energies.axial import axial_force, axial_potential
@@ -109,12 +110,7 @@ def one_launch_step(x: vec3_array, v: vec3_array, inv_mass: scalar_array, g: ti.
             f += hinge_gather(fh, h_offsets, h_entries, i)
         update(SYMPLECTIC_EULER, KICK, i, x, v, f, v, inv_mass, g, dt, ti.math.vec3(0.0))
     for i in range(x.shape[0]):
-        update(SYMPLECTIC_EULER, DRIFT, i, x, v, f_zero(), v, inv_mass, g, dt, ti.math.vec3(0.0))
-
-
-@ti.func
-def f_zero():
-    return ti.math.vec3(0.0)
+        update(SYMPLECTIC_EULER, DRIFT, i, x, v, ti.math.vec3(0.0), v, inv_mass, g, dt, ti.math.vec3(0.0))
 
 
 @ti.func
@@ -153,6 +149,34 @@ def _axial_kinetic(v: ti.template(), m: ti.template()) -> float:
     for i in range(v.shape[0]):
         K += 0.5 * m[i] * v[i] * v[i]
     return K
+
+
+_buffers: dict[int, tuple] = {}
+
+
+def energy_buffers(n: int):
+    """Reusable (kin, pot) ndarrays of at least n entries for the many-steps kernels (chunked runs
+    allocate nothing)."""
+    size = 1
+    while size < n:
+        size *= 2
+    buf = _buffers.get(size)
+    if buf is None:
+        buf = _buffers[size] = (ti.ndarray(dtype=float, shape=size), ti.ndarray(dtype=float, shape=size))
+    return buf
+
+
+def collect(kin, pot, done: int, n_steps: int, state, dt: float, monitor, step_offset: int = 0):
+    """After a many-steps kernel returned ``done``: the (kinetic, potential) numpy arrays of the steps
+    taken, ``state.t`` advanced by them, and the monitor's blow-up raised (with those energies) if the
+    run stopped at step ``done``."""
+    taken = min(int(done) + 1, n_steps)
+    kinetic = kin.to_numpy()[:taken].astype(np.float64)
+    potential = pot.to_numpy()[:taken].astype(np.float64)
+    state.t += dt * taken
+    if done < n_steps:
+        raise monitor.blow_up(step_offset + int(done), state.t, float(kinetic[-1] + potential[-1]), kinetic, potential)
+    return kinetic, potential
 
 
 @ti.func

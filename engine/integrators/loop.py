@@ -33,8 +33,7 @@ def model_stepper(model, state, dt: float, integrator, monitor: Monitor, n_total
         def advance(chunk, done):
             if check_interrupt is not None:
                 check_interrupt()
-            monitor.step_offset = done
-            K, W = many(state, dt, chunk, monitor)
+            K, W = many(state, dt, chunk, monitor, done)
             return np.arange(done + 1, done + chunk + 1), K, W
         return advance
 
@@ -45,7 +44,6 @@ def model_stepper(model, state, dt: float, integrator, monitor: Monitor, n_total
             begun.append(True)
             integrator.begin(model, state)
         steps, kin, pot = [], [], []
-        monitor.step_offset = 0
         for s in range(done + 1, done + chunk + 1):
             if check_interrupt is not None:
                 check_interrupt()

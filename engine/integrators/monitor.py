@@ -7,16 +7,13 @@ estimate and the likely cause. A linear solve of an implicit step that fails is 
 the same class, naming the solver.
 
 Many-steps kernels take :attr:`Monitor.bound` as an argument and stop themselves at the bad step;
-Python-driven steps call :meth:`Monitor.check`.
+the run loop (engine.integrators.loop) tests Python-driven steps with :meth:`Monitor.exceeded`.
 """
 from __future__ import annotations
 
 import math
 
 from engine.errors import BlowUpError
-
-EXPLICIT_STABLE = ("symplectic-euler", "velocity-verlet")
-
 
 def exceeded(E: float, bound: float = math.inf) -> bool:
     """True when a total energy marks a blow-up: not finite (nan or +-inf, bound or not) or above ``bound``."""
@@ -45,11 +42,11 @@ class Monitor:
 
     ``energy_bound`` (J) or None (then only a non-finite energy is a blow-up); ``dt_stable``: the CFL
     estimate, a number or a callable evaluated only when a blow-up is reported (default: the model's
-    Gershgorin bound, or power iteration for energies without one); ``step_offset`` is added to the
-    step numbers reported (a run continued in chunks)."""
+    Gershgorin bound, or power iteration for energies without one). Steps are counted from the start
+    of the run (a run continued in chunks passes the steps already done)."""
 
     def __init__(self, integrator: str, dt: float, energy_bound: float | None = None, model=None,
-                 dt_stable=None, step_offset: int = 0):
+                 dt_stable=None):
         if energy_bound is not None and math.isnan(float(energy_bound)):
             raise ValueError("energy_bound must be a number or None (got nan)")
         self.integrator = integrator
@@ -57,7 +54,6 @@ class Monitor:
         self.energy_bound = None if energy_bound is None else float(energy_bound)
         self.model = model
         self._dt_stable = dt_stable
-        self.step_offset = int(step_offset)
 
     @property
     def bound(self) -> float:
@@ -77,8 +73,8 @@ class Monitor:
         return exceeded(E, self.bound)
 
     def blow_up(self, step: int, t: float, E: float, kinetic=None, potential=None) -> BlowUpError:
-        """The error for a blow-up detected after ``step`` (0-based, before the offset)."""
-        step = self.step_offset + int(step)
+        """The error for a blow-up detected after ``step`` (0-based, from the start of the run)."""
+        step = int(step)
         dts = self.dt_stable()
         what = "is not finite" if not math.isfinite(E) else f"exceeds the bound {self.bound:.4g} J"
         cause = blowup_cause(self.integrator, self.dt, dts)
@@ -92,15 +88,10 @@ class Monitor:
 
     def solver_failure(self, step: int, t: float, E: float, err: Exception) -> BlowUpError:
         """The error for an implicit step whose linear solve failed after ``step`` good steps."""
-        step = self.step_offset + int(step)
+        step = int(step)
         cause = ("the linear solver did not converge (raise --tol, allow more iterations, or use "
                  "--solver cholesky)")
         msg = (f"{self.integrator} failed at step {step} (t={t:.4g} s, total energy {E:.4g} J at the last "
                f"good step): {err}; likely cause: {cause}")
         return BlowUpError(msg, step=step, energy=E, time=t, dt=self.dt, dt_stable=math.inf,
                            integrator=self.integrator, cause=cause)
-
-    def check(self, step: int, t: float, E: float) -> None:
-        """Raise the blow-up error if the total energy ``E`` after ``step`` marks one."""
-        if self.exceeded(E):
-            raise self.blow_up(step, t, E)
