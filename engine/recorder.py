@@ -5,20 +5,36 @@ One :class:`Recorder` per lesson run writes one ``.rrd`` file through its own
 name beside the target and renamed onto the target only by :meth:`Recorder.close`, so a
 crash or a kill never leaves a truncated file under the final name.
 
+The recorder also plans what a student sees when the file is opened: it notes every stage, every
+run, whether a run drew geometry, where that geometry lies, which colour scale it used and
+whether it logged energies or events, and :meth:`Recorder.blueprint` turns that plan into the
+viewer's layout (sent with the file on :meth:`close`, and after every stage when streaming live):
+
+- one tab per stage, named "<N>. <title>", opening on the first stage that drew geometry;
+- in a tab, one scene view per run that drew geometry, named by the run's label (and its colour
+  key), with a camera placed from the run's bounding box (``top``: looking down on the x-y plane,
+  for rods and flat sheets; ``front``: looking along +y at a cloth hanging in the x-z plane;
+  ``outside``: an oblique eye outside a 3D body); beside it the run's energy plot;
+- the stage's narrative (and any other documents it logged), its event log when a run marked
+  something (a blow-up and its message), and its results table across the bottom.
+
 Timelines:
-    ``frame``     the simulation step index, counted across the whole lesson (each run
-                  continues where the previous one stopped, so runs follow each other);
-    ``sim_time``  simulated seconds since the start of the run (runs overlap here, which
-                  lets the viewer compare runs at the same simulated time).
+    ``progress``  per mille of the run's span (its planned duration unless the stage gives one):
+                  every run of every stage plays over 0..1000, so any tab shows its own runs at
+                  the same point of their runs and none has to be found on a long timeline;
+    ``sim_time``  simulated seconds since the start of the run (runs overlap);
+    ``step``      the time step of the run.
 
 Entity layout (``S`` = ``stage<N>``, ``R`` = run name inside the stage):
-    /S/narrative              markdown TextDocument, static
-    /S/results                markdown table of the stage's experiments, static
-    /S/R/rod/nodes            Points3D, rod nodes at (x_i, 0, 0), coloured by strain
-    /S/R/rod/displacement     LineStrips3D, the profile (p, gain*u(p), 0)
-    /S/R/springs              LineStrips3D, one strip per spring, coloured by strain
-    /S/R/mesh                 Mesh3D; triangles static, positions/colours per frame
-    /S/R/energy/{kinetic,potential,total}   Scalars, one row per step (send_columns)
+    /S/narrative, /S/results, /S/<doc>   markdown TextDocuments, static
+    /S/R/...                             the run's geometry (rod, springs, mesh, labels)
+    /S/R/energy/{kinetic,potential,total}   Scalars (J), at most ENERGY_SAMPLES per run: the
+                                         lowest and highest sample of each bin of steps, so a
+                                         curve that oscillates faster than a bin is drawn as
+                                         its envelope, not aliased
+    /S/R/energy_change/relative          (E - E_1)/|E_1| of the total, for runs about
+                                         conservation (``energy="drift"``)
+    /S/R/events                          TextLog (blow-ups)
 
 :class:`NullRecorder` has the same methods and does nothing; ``enabled`` is False so
 callers can skip building colours and arrays altogether.
@@ -26,14 +42,31 @@ callers can skip building colours and arrays altogether.
 from __future__ import annotations
 
 import errno
+import math
 import os
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-__all__ = ["Recorder", "NullRecorder", "strain_colors", "check_writable"]
+__all__ = ["Recorder", "NullRecorder", "RunView", "strain_colors", "magnitude_colors", "check_writable",
+           "summarize", "PROGRESS_TICKS", "FRAMES_PER_RUN"]
+
+PROGRESS_TICKS = 1000       # a run's span on the ``progress`` timeline
+FRAMES_PER_RUN = 200        # geometry frames a run draws at most (tens per period of a wave)
+MIN_FRAMES_PER_RUN = 20     # ... and at least, when its span allows
+RUN_GEOMETRY_BYTES = 900_000  # a run's geometry budget (bytes of arrays logged), which sets its frames
+ENERGY_SAMPLES = 2000       # energy samples per series and run at most (min and max per bin)
+PLAYBACK_SECONDS = 20.0     # a run plays in this many seconds at the viewer's 1x speed
+CAMERAS = ("top", "front", "outside")
+# the energy series: name and colour (the plots name them in their titles, with no legend)
+SERIES = {"kinetic": ("kinetic", (90, 200, 90)), "potential": ("potential", (90, 150, 255)),
+          "total": ("total", (235, 235, 235)), "relative": ("(E - E1) / |E1|", (255, 190, 60))}
+ENERGY_PLOT_NAME = "energy (J): kinetic green · potential blue · total white"
+DRIFT_PLOT_NAME = "total energy, relative change from step 1"
+FOV_Y = math.radians(55.0)  # the 3D view's vertical field of view (the viewer's default)
 
 
 def strain_colors(strain: np.ndarray, scale: float | None = None) -> np.ndarray:
@@ -99,28 +132,171 @@ def check_writable(path: str | os.PathLike) -> Path:
         raise
 
 
-def lesson_blueprint(stages: list[tuple[int, str]], view: str = "3d") -> rrb.Blueprint:
-    """One tab per stage: the scene, the energy plot, the narrative and the results."""
-    tabs = []
-    for index, title in stages:
-        origin = f"/stage{index}"
-        scene = (rrb.Spatial2DView if view == "2d" else rrb.Spatial3DView)(
-            origin=origin, name=f"{index}. scene")
-        tabs.append(
-            rrb.Horizontal(
-                scene,
-                rrb.Vertical(
-                    rrb.TimeSeriesView(origin=origin, name="energies"),
-                    rrb.TextDocumentView(origin=f"{origin}/results", name="results"),
-                    row_shares=[2, 1],
-                ),
-                rrb.TextDocumentView(origin=f"{origin}/narrative", name="narrative"),
-                column_shares=[3, 2, 2],
-                name=f"{index}. {title}",
-            )
-        )
-    return rrb.Blueprint(rrb.Tabs(*tabs), collapse_panels=False)
+# ------------------------------------------------------------------------------ the plan
 
+@dataclass
+class RunView:
+    """How a run is shown: its view's ``label``, the ``camera`` (one of CAMERAS; default: the
+    lesson's), what its energy plot shows (``"split"``: kinetic, potential and total; ``"drift"``:
+    the relative change of the total, for runs about conservation; None: no plot) and its ``span``
+    on the progress timeline in simulated seconds (default: the run's planned duration; give the
+    stage's longest run's to keep runs of different lengths in step)."""
+
+    label: str | None = None
+    camera: str | None = None
+    energy: str | None = "split"
+    span: float | None = None
+
+    def __post_init__(self):
+        if self.camera is not None and self.camera not in CAMERAS:
+            raise ValueError(f"camera must be one of {CAMERAS} (got {self.camera!r})")
+        if self.energy not in ("split", "drift", None):
+            raise ValueError(f"energy must be 'split', 'drift' or None (got {self.energy!r})")
+
+
+@dataclass
+class RunPlan:
+    """What one run recorded (filled in as it logs)."""
+
+    name: str
+    entity: str
+    label: str
+    camera: str
+    energy: str | None
+    span: float | None = None
+    n_steps: int | None = None
+    lo: np.ndarray | None = None      # bounding box of everything drawn
+    hi: np.ndarray | None = None
+    box0: tuple | None = None         # the first frame's box
+    frames: int = 0                   # geometry frames drawn
+    frame_bytes: int = 0              # bytes of the first frame's arrays
+    has_energy: bool = False
+    has_events: bool = False
+    keys: dict = field(default_factory=dict)   # quantity -> colour key text
+    scales: dict = field(default_factory=dict)  # quantity -> fixed colour scale
+
+    @property
+    def has_geometry(self) -> bool:
+        return self.frames > 0
+
+
+@dataclass
+class StagePlan:
+    index: int
+    title: str
+    runs: list = field(default_factory=list)
+    docs: list = field(default_factory=list)   # markdown entities besides narrative/results
+    has_results: bool = False
+    events: bool = False                       # a run (or the stage) logged an event
+
+    @property
+    def scene_runs(self) -> list:
+        return [r for r in self.runs if r.has_geometry]
+
+    @property
+    def has_events(self) -> bool:
+        return self.events or any(r.has_events for r in self.runs)
+
+
+def _camera(run: RunPlan, aspect: float) -> rrb.EyeControls3D:
+    """An eye that frames the run's bounding box in a view of width/height ``aspect``."""
+    lo, hi = run.lo, run.hi
+    centre = 0.5 * (lo + hi)
+    half = np.maximum(0.5 * (hi - lo), 1e-6)
+    if run.camera == "top":
+        direction, up, across, upward = np.array([0, 0, 1.0]), [0, 1.0, 0], half[0], half[1]
+        depth = half[2]
+    elif run.camera == "front":
+        direction, up, across, upward = np.array([0, -1.0, 0]), [0, 0, 1.0], half[0], half[2]
+        depth = half[1]
+    else:  # outside: oblique, from the front-right and above
+        direction = np.array([0.75, -1.1, 0.7])
+        direction /= np.linalg.norm(direction)
+        up = [0, 0, 1.0]
+        radius = float(np.linalg.norm(half))
+        across = upward = radius
+        depth = radius
+    tan = math.tan(FOV_Y / 2)
+    distance = 1.12 * max(upward / tan, across / (tan * max(aspect, 1e-3))) + depth
+    position = centre + distance * direction
+    return rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital, position=position.tolist(),
+                             look_target=centre.tolist(), eye_up=up)
+
+
+# Where the grid of scene views sits in a 1600 x 1000 window with the panels collapsed: about
+# 1150 x 620 pixels (the narrative column takes the rest of the width, the results the rest of
+# the height). Cameras are placed for the cells of that area.
+_GRID_W, _GRID_H = 1150.0, 580.0
+
+
+def _grid_shape(runs: list) -> tuple[int, bool]:
+    """(columns, strip): rods and other long flat things go one per row, their plot beside them."""
+    n = len(runs)
+    extents = [np.maximum(r.hi - r.lo, 1e-9) for r in runs]
+    strip = all(r.camera == "top" and e[0] > 3.0 * e[1] for r, e in zip(runs, extents))
+    if strip:
+        return 1, True
+    return (1 if n == 1 else 2 if n <= 4 else 3), False
+
+
+def stage_view(stage: StagePlan, lesson_title: str = "") -> rrb.Container:
+    """The tab of one stage (see the module docstring)."""
+    origin = f"/stage{stage.index}"
+    side = [rrb.TextDocumentView(origin=f"{origin}/narrative", name="narrative")]
+    side += [rrb.TextDocumentView(origin=f"{origin}/{d}", name=d) for d in stage.docs]
+    if stage.has_events:
+        side.append(rrb.TextLogView(origin=origin, name="events (blow-ups and warnings)"))
+    side_panel = side[0] if len(side) == 1 else rrb.Vertical(*side, row_shares=[3] + [2] * (len(side) - 1))
+    runs = stage.scene_runs
+    results = rrb.TextDocumentView(origin=f"{origin}/results", name="results")
+    name = f"{stage.index}. {stage.title}"
+    if not runs:
+        return rrb.Horizontal(side_panel, results, column_shares=[1, 1], name=name)
+    columns, strip = _grid_shape(runs)
+    rows = math.ceil(len(runs) / columns)
+    cell_w, cell_h = _GRID_W / columns, _GRID_H / rows
+    cells = []
+    for run in runs:
+        has_plot = run.energy is not None and run.has_energy
+        scene_w = cell_w * (0.72 if (has_plot and strip) else 1.0)
+        scene_h = cell_h * (0.7 if (has_plot and not strip) else 1.0) - 24  # title bar
+        key = "; ".join(run.keys.values())
+        scene = rrb.Spatial3DView(origin=run.entity, name=run.label + (f" · {key}" if key else ""),
+                                  eye_controls=_camera(run, scene_w / max(scene_h, 1.0)),
+                                  line_grid=rrb.LineGrid3D(visible=run.camera != "top"))
+        if not has_plot:
+            cells.append(scene)
+            continue
+        if run.energy == "drift":
+            plot = rrb.TimeSeriesView(origin=f"{run.entity}/energy_change", name=DRIFT_PLOT_NAME,
+                                      plot_legend=rrb.PlotLegend(visible=False))
+        else:
+            plot = rrb.TimeSeriesView(origin=f"{run.entity}/energy", name=ENERGY_PLOT_NAME,
+                                      plot_legend=rrb.PlotLegend(visible=False))
+        cells.append(rrb.Horizontal(scene, plot, column_shares=[3, 1.2]) if strip
+                     else rrb.Vertical(scene, plot, row_shares=[2.3, 1]))
+    grid = rrb.Grid(*cells, grid_columns=columns)
+    left = rrb.Vertical(grid, results, row_shares=[2.4, 1])
+    return rrb.Horizontal(left, side_panel, column_shares=[3, 1], name=name)
+
+
+def lesson_blueprint(stages: list, active: int | None = None, lesson_title: str = "") -> rrb.Blueprint:
+    """The layout of a recording from its plan (a list of StagePlan): one tab per stage, opening
+    on stage ``active`` (default: the first that drew geometry), panels collapsed, the progress
+    timeline playing one run in PLAYBACK_SECONDS, looping."""
+    if active is None:
+        active = next((s.index for s in stages if s.scene_runs), stages[0].index if stages else None)
+    tabs = [stage_view(s, lesson_title) for s in stages]
+    active_tab = next((i for i, s in enumerate(stages) if s.index == active), 0)
+    return rrb.Blueprint(
+        rrb.Tabs(*tabs, active_tab=active_tab) if tabs else rrb.Tabs(),
+        rrb.TimePanel(timeline="progress", fps=PROGRESS_TICKS / PLAYBACK_SECONDS, play_state="playing",
+                      loop_mode="all", state="collapsed"),
+        rrb.BlueprintPanel(state="collapsed"), rrb.SelectionPanel(state="collapsed"),
+        collapse_panels=True)
+
+
+# ------------------------------------------------------------------------------ recorders
 
 class NullRecorder:
     """A recorder that records nothing and costs nothing."""
@@ -129,7 +305,7 @@ class NullRecorder:
     path = None
 
     def __init__(self, *args, **kwargs):
-        self.frame = 0  # next free step index on the ``frame`` timeline
+        self.frame = 0
 
     def __enter__(self):
         return self
@@ -141,8 +317,18 @@ class NullRecorder:
     def stage(self, index: int, title: str, narrative: str) -> None:
         pass
 
-    def run(self, name: str) -> str:
+    def run(self, name: str, view: RunView | None = None, n_steps: int | None = None,
+            dt: float | None = None) -> str:
         return name
+
+    def wants_frame(self, step: int, sim_time: float) -> bool:
+        return False
+
+    def frame_spacing(self, n_steps: int) -> int:
+        return n_steps or 1
+
+    def colors(self, values, kind: str = "signed", quantity: str = "strain", scale: float | None = None):
+        return None
 
     def set_time(self, step: int, sim_time: float) -> None:
         pass
@@ -162,6 +348,9 @@ class NullRecorder:
     def mesh(self, *args, **kwargs) -> None:
         pass
 
+    def labels(self, *args, **kwargs) -> None:
+        pass
+
     def energies(self, *args, **kwargs) -> None:
         pass
 
@@ -179,77 +368,229 @@ class NullRecorder:
 
 
 class Recorder(NullRecorder):
-    """Writes one lesson's recording to ``path`` (atomically, on :meth:`close`)."""
+    """Writes one lesson's recording to ``path`` (atomically, on :meth:`close`).
+
+    ``title`` names the recording in the viewer; ``camera`` is the default camera of the lesson's
+    runs; ``live`` also streams to a Rerun viewer (spawned, or the one at ``live`` if it is a
+    ``rerun+http://`` address) that follows the stage being run. ``path`` None with ``live``
+    streams only."""
 
     enabled = True
 
-    def __init__(self, path: str | os.PathLike, application_id: str,
-                 blueprint: rrb.Blueprint | None = None, strict: bool = False):
+    def __init__(self, path: str | os.PathLike | None, application_id: str, title: str = "",
+                 camera: str = "outside", live: bool | str = False, strict: bool = False):
         super().__init__()
-        self.path = check_writable(path)
-        self._tmp = self.path.with_name(f".{self.path.name}.partial-{os.getpid()}")
+        if camera not in CAMERAS:
+            raise ValueError(f"camera must be one of {CAMERAS} (got {camera!r})")
+        self.path = check_writable(path) if path is not None else None
+        self._tmp = self.path.with_name(f".{self.path.name}.partial-{os.getpid()}") if self.path else None
         self._rec = rr.RecordingStream(application_id)
         if strict:
             rr.set_strict_mode(True)
-        self._rec.save(str(self._tmp), default_blueprint=blueprint)
+        sinks = [rr.FileSink(str(self._tmp))] if self._tmp else []
+        self.live = bool(live)
+        if live:
+            url = live if isinstance(live, str) else None
+            if url is None:
+                rr.spawn(connect=False, hide_welcome_screen=True)
+            sinks.append(rr.GrpcSink(url) if url else rr.GrpcSink())
+        if not sinks:
+            raise ValueError("a Recorder needs a path or live=True")
+        self._rec.set_sinks(*sinks)
+        self.title = title
+        if title:
+            self._rec.send_recording_name(title)
+        self.default_camera = camera
+        self.stages: list[StagePlan] = []
+        self._run: RunPlan | None = None
         self._prefix = ""
         self._stage = ""
-        self._run_start = 0
         self._closed = False
         self._static_done: set[str] = set()
+        self._frame_tick = -1         # progress tick of the run's last geometry frame
+        self._frame_bytes = 0         # bytes logged in the current frame
+        self._pending: list = []      # energy samples not yet binned: (step, K, W)
+        self._outbox: dict = {}       # entity -> kept samples not yet sent
+        self._energy_dt = 0.0
+        self._energy_first_total = None
 
     # --- structure --------------------------------------------------------------
     def stage(self, index: int, title: str, narrative: str) -> None:
         """Start stage ``index``; its narrative goes to /stage<index>/narrative."""
+        self._end_run()
         self._stage = f"stage{index}"
         self._prefix = self._stage
+        self.stages.append(StagePlan(index, title))
         self.markdown("narrative", f"# {index}. {title}\n\n{narrative}")
+        if self.live:
+            self._rec.send_blueprint(self.blueprint(active=index), make_active=True, make_default=False)
 
-    def run(self, name: str) -> str:
-        """Start a run inside the current stage; returns its entity prefix.
-
-        The run's first step is the current ``frame``; ``sim_time`` restarts at 0.
-        """
+    def run(self, name: str, view: RunView | None = None, n_steps: int | None = None,
+            dt: float | None = None) -> str:
+        """Start a run inside the current stage; returns its entity prefix. ``n_steps`` and ``dt``
+        (planned) set its span on the progress timeline unless ``view.span`` does."""
+        self._end_run()
+        view = view or RunView()
         safe = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in name)
         self._prefix = f"{self._stage}/{safe}" if self._stage else safe
-        self._run_start = self.frame
+        span = view.span
+        if span is None and n_steps and dt:
+            span = n_steps * dt
+        self._run = RunPlan(name=name, entity=f"/{self._prefix}", label=view.label or name,
+                            camera=view.camera or self.default_camera, energy=view.energy,
+                            span=span if span and span > 0 else None, n_steps=n_steps)
+        self._energy_dt = float(dt or 0.0)
+        if self.stages:
+            self.stages[-1].runs.append(self._run)
+        self._frame_tick = -1
         return self._prefix
+
+    def _end_run(self) -> None:
+        if self._run is not None:
+            self._flush_energies(final=True)
+            self._close_frame()
+        self._run = None
+        self._pending = []
+        self._energy_first_total = None
+
+    def _tick(self, sim_time: float, step: int) -> int:
+        run = self._run
+        if run is None or run.span is None:
+            return int(step)
+        return int(round(PROGRESS_TICKS * float(sim_time) / run.span))
+
+    def _allowed_frames(self) -> int:
+        run = self._run
+        if run is None or run.frame_bytes <= 0:
+            return FRAMES_PER_RUN
+        return int(min(FRAMES_PER_RUN, max(MIN_FRAMES_PER_RUN, RUN_GEOMETRY_BYTES // run.frame_bytes)))
+
+    def wants_frame(self, step: int, sim_time: float) -> bool:
+        """Whether a run stepping through ``step`` should draw its geometry now: the first frame,
+        then about FRAMES_PER_RUN evenly spaced on the progress timeline (fewer when a frame is
+        large: RUN_GEOMETRY_BYTES per run), and the run's last step."""
+        run = self._run
+        if run is None or run.span is None or self._frame_tick < 0:
+            return True
+        if run.n_steps is not None and step >= run.n_steps:
+            return True
+        spacing = PROGRESS_TICKS / self._allowed_frames()
+        return self._tick(sim_time, step) >= self._frame_tick + spacing - 1e-9
+
+    def frame_spacing(self, n_steps: int) -> int:
+        """The step spacing a run of ``n_steps`` needs to offer FRAMES_PER_RUN frames."""
+        return max(1, n_steps // FRAMES_PER_RUN)
 
     def _path(self, entity: str) -> str:
         return f"/{self._prefix}/{entity}" if self._prefix else f"/{entity}"
 
     def set_time(self, step: int, sim_time: float) -> None:
-        """Set both timelines for the next logged geometry: ``step`` = steps done in this run."""
-        frame = self._run_start + int(step)
-        self.frame = max(self.frame, frame + 1)
-        self._rec.set_time("frame", sequence=frame)
+        """Set the timelines for the geometry drawn next: ``step`` = steps done in this run."""
+        self._close_frame()
+        tick = self._tick(sim_time, step)
+        self._frame_tick = tick
+        self._rec.set_time("progress", sequence=tick)
         self._rec.set_time("sim_time", duration=float(sim_time))
+        self._rec.set_time("step", sequence=int(step))
+
+    def _close_frame(self) -> None:
+        if self._run is not None and self._frame_bytes:
+            if self._run.frames == 0:
+                self._run.frame_bytes = self._frame_bytes
+                if self._run.lo is not None:
+                    self._run.box0 = (self._run.lo.copy(), self._run.hi.copy())
+            self._run.frames += 1
+        self._frame_bytes = 0
+
+    def _drew(self, points: np.ndarray, *arrays) -> None:
+        """Note drawn geometry: its bounding box and its bytes in this frame."""
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        self._frame_bytes += pts.size * 4 + sum(np.asarray(a).nbytes for a in arrays if a is not None) + 1
+        run = self._run
+        if run is None or pts.size == 0:
+            return
+        finite = pts[np.all(np.isfinite(pts), axis=1)]
+        if finite.size == 0:
+            return
+        if run.frames == 0:  # the first frame sets the box
+            lo, hi = finite.min(axis=0), finite.max(axis=0)
+            run.lo = lo if run.lo is None else np.minimum(run.lo, lo)
+            run.hi = hi if run.hi is None else np.maximum(run.hi, hi)
+            return
+        # later frames widen it by what stays within two body sizes of it (a body that moves
+        # or sags stays framed; the far-flung nodes of a blow-up do not pull the camera away)
+        lo0, hi0 = run.box0 if run.box0 is not None else (run.lo, run.hi)
+        c0, size = 0.5 * (lo0 + hi0), float(np.max(hi0 - lo0))
+        near = finite[np.all(np.abs(finite - c0) <= 0.5 * (hi0 - lo0) + 2.0 * size, axis=1)]
+        if near.size:
+            run.lo = np.minimum(run.lo, near.min(axis=0))
+            run.hi = np.maximum(run.hi, near.max(axis=0))
+
+    # --- colours ----------------------------------------------------------------
+    def colors(self, values, kind: str = "signed", quantity: str = "strain", scale: float | None = None):
+        """Colours of ``values`` on the run's fixed scale for ``quantity``: ``scale`` if given,
+        else the largest |value| the first time the run shows a non-zero value. ``kind``
+        "signed": blue (-scale) / white (0) / red (+scale); "magnitude": dark blue (0) to yellow
+        (scale). The scale goes into the run's view name as the colour key."""
+        v = np.asarray(values, dtype=np.float64)
+        run = self._run
+        fixed = run.scales.get(quantity) if run is not None else None
+        if fixed is None:
+            fixed = scale if scale is not None else (float(np.max(np.abs(v))) if v.size else 0.0)
+            if run is not None and fixed > 0:
+                run.scales[quantity] = fixed
+                run.keys[quantity] = (f"{quantity}: blue −{fixed:.2g} · white 0 · red +{fixed:.2g}"
+                                      if kind == "signed" else f"{quantity}: blue 0 → yellow {fixed:.2g}")
+        scale_ = fixed if fixed and fixed > 0 else 1.0
+        return strain_colors(v, scale_) if kind == "signed" else magnitude_colors(v, scale_)
 
     # --- geometry ----------------------------------------------------------------
-    def points(self, entity: str, positions, colors=None, radii=None) -> None:
-        self._rec.log(self._path(entity), rr.Points3D(np.asarray(positions), colors=colors, radii=radii))
+    def points(self, entity: str, positions, colors=None, radii=None, labels=None) -> None:
+        pts = np.asarray(positions)
+        self._drew(pts, colors)
+        self._rec.log(self._path(entity), rr.Points3D(pts, colors=colors, radii=radii, labels=labels))
+
+    def labels(self, entity: str, positions, texts, colors=None) -> None:
+        """Text labels at points (e.g. the name of each of several bodies drawn side by side)."""
+        pts = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
+        self._rec.log(self._path(entity), rr.Points3D(pts, labels=list(texts), radii=0.0,
+                                                      colors=colors if colors is not None else [[230, 230, 230]]),
+                      static=True)
 
     def rod(self, x: np.ndarray, p: np.ndarray, strain_nodes: np.ndarray | None = None,
-            gain: float = 1.0, radius: float = 0.004) -> None:
-        """Rod nodes at (x_i, 0, 0) and the displacement profile (p_i, gain*u_i, 0)."""
+            gain: float = 1.0, radius: float = 0.004, scale: float | None = None) -> None:
+        """Rod nodes at (p_i, 0, 0) (static) coloured by strain on the run's fixed scale, and the
+        displacement profile (p_i, gain*u_i, 0) drawn above them."""
         n = x.size
         pts = np.zeros((n, 3))
-        pts[:, 0] = x
-        colors = strain_colors(strain_nodes) if strain_nodes is not None else None
-        self._rec.log(self._path("rod/nodes"), rr.Points3D(pts, colors=colors, radii=radius))
+        pts[:, 0] = p
+        colors = self.colors(strain_nodes, "signed", "strain", scale) if strain_nodes is not None else None
+        nodes = self._path("rod/nodes")
+        if nodes not in self._static_done:  # the nodes stay where they are drawn: only their colours change
+            self._rec.log(nodes, rr.Points3D(pts, radii=radius), static=True)
+            self._static_done.add(nodes)
+        self._drew(pts[[0, -1]], colors)
+        if colors is not None:
+            self._rec.log(nodes, rr.Points3D.from_fields(colors=colors))
         prof = np.zeros((n, 3))
         prof[:, 0] = p
         prof[:, 1] = gain * (x - p)
-        self._rec.log(self._path("rod/displacement"), rr.LineStrips3D([prof], colors=[[230, 160, 30]]))
+        prof = prof[_corners(prof[:, 0], prof[:, 1])]  # drawn the same, smaller
+        self._drew(prof)
+        self._rec.log(self._path("rod/displacement"),
+                      rr.LineStrips3D([prof], colors=[[230, 160, 30]], radii=radius * 0.6))
 
     def line_strips(self, entity: str, strips, colors=None, radii=None) -> None:
+        pts = np.concatenate([np.asarray(s, dtype=np.float64).reshape(-1, 3) for s in strips]) if len(strips) else np.zeros((0, 3))
+        self._drew(pts, colors)
         self._rec.log(self._path(entity), rr.LineStrips3D(strips, colors=colors, radii=radii))
 
     def springs(self, x: np.ndarray, edges: np.ndarray, strain: np.ndarray | None = None,
                 entity: str = "springs", scale: float | None = None) -> None:
-        """Springs as two-point line strips, coloured by strain."""
+        """Springs as two-point line strips, coloured by strain on the run's fixed scale."""
         segs = np.stack([x[edges[:, 0]], x[edges[:, 1]]], axis=1)
-        colors = strain_colors(strain, scale) if strain is not None else None
+        colors = self.colors(strain, "signed", "strain", scale) if strain is not None else None
+        self._drew(segs.reshape(-1, 3), colors)
         self._rec.log(self._path(entity), rr.LineStrips3D(segs, colors=colors))
 
     def mesh(self, x: np.ndarray, triangles: np.ndarray, vertex_colors=None, entity: str = "mesh") -> None:
@@ -259,75 +600,181 @@ class Recorder(NullRecorder):
             self._rec.log(path, rr.Mesh3D.from_fields(triangle_indices=np.asarray(triangles, dtype=np.uint32)),
                           static=True)
             self._static_done.add(path)
+        self._drew(np.asarray(x), vertex_colors)
         self._rec.log(path, rr.Mesh3D.from_fields(vertex_positions=np.asarray(x), vertex_colors=vertex_colors))
 
     # --- scalars and text ---------------------------------------------------------
-    def scalar_series(self, entity: str, values: np.ndarray, dt: float, first_step: int = 0,
-                      t0: float = 0.0) -> None:
-        """One scalar per step, sent as a column (one call for thousands of steps)."""
+    def _columns(self, steps: np.ndarray):
+        dt = self._energy_dt
+        run = self._run
+        times = dt * steps
+        if run is not None and run.span is not None:
+            ticks = np.rint(PROGRESS_TICKS * times / run.span).astype(np.int64)
+        else:
+            ticks = steps
+        return [rr.TimeColumn("progress", sequence=ticks), rr.TimeColumn("sim_time", duration=times),
+                rr.TimeColumn("step", sequence=steps)]
+
+    def scalar_series(self, entity: str, values: np.ndarray, steps: np.ndarray) -> None:
+        """Scalars at the run's ``steps``, sent as one column (styled once: SERIES)."""
         values = np.asarray(values, dtype=np.float64)
         if values.size == 0:
             return
-        steps = self._run_start + first_step + 1 + np.arange(values.size)  # after step s+1
-        self.frame = max(self.frame, int(steps[-1]) + 1)
-        times = t0 + dt * (first_step + 1 + np.arange(values.size))
-        self._rec.send_columns(
-            self._path(entity),
-            indexes=[rr.TimeColumn("frame", sequence=steps), rr.TimeColumn("sim_time", duration=times)],
-            columns=rr.Scalars.columns(scalars=values),
-        )
+        path = self._path(entity)
+        if path not in self._static_done:
+            name, color = SERIES.get(entity.rsplit("/", 1)[-1], (entity.rsplit("/", 1)[-1], (200, 200, 200)))
+            self._rec.log(path, rr.SeriesLines(colors=[color], names=[name], widths=[1.5],
+                                               aggregation_policy="minmax"), static=True)
+            self._static_done.add(path)
+        self._rec.send_columns(self._path(entity), indexes=self._columns(np.asarray(steps, dtype=np.int64)),
+                               columns=rr.Scalars.columns(scalars=values))
 
-    def energies(self, kinetic: np.ndarray, potential: np.ndarray, dt: float, first_step: int = 0,
-                 t0: float = 0.0) -> None:
-        """Kinetic, potential and total energy per step (J)."""
-        kinetic = np.asarray(kinetic)
-        potential = np.asarray(potential)
-        for name, vals in (("kinetic", kinetic), ("potential", potential), ("total", kinetic + potential)):
-            self.scalar_series(f"energy/{name}", vals, dt, first_step, t0)
+    def energies(self, kinetic, potential, dt: float, first_step: int = 0, t0: float = 0.0) -> None:
+        """Kinetic and potential energy (J) after steps first_step+1, first_step+2, ...; at most
+        ENERGY_SAMPLES per series and run are kept (the lowest and highest of each bin)."""
+        kinetic = np.asarray(kinetic, dtype=np.float64)
+        potential = np.asarray(potential, dtype=np.float64)
+        if kinetic.size == 0:
+            return
+        if not self._energy_dt:
+            self._energy_dt = float(dt)
+        steps = first_step + 1 + np.arange(kinetic.size)
+        self._pending.append((steps, kinetic, potential))
+        if self._run is not None:
+            self._run.has_energy = True
+        self._flush_energies(final=False)
+
+    def _bin(self) -> int:
+        run = self._run
+        n = run.n_steps if run is not None and run.n_steps else 0
+        return max(1, math.ceil(2 * n / ENERGY_SAMPLES)) if n else 1
+
+    def _flush_energies(self, final: bool) -> None:
+        if not self._pending:
+            if final:
+                self._send_energies(True)
+            return
+        steps = np.concatenate([p[0] for p in self._pending])
+        K = np.concatenate([p[1] for p in self._pending])
+        W = np.concatenate([p[2] for p in self._pending])
+        width = self._bin()
+        bins = (steps - 1) // width
+        if not final:  # keep the last (maybe incomplete) bin for the next call
+            done = bins < bins[-1]
+            if not done.any():
+                self._pending = [(steps, K, W)]
+                return
+            self._pending = [(steps[~done], K[~done], W[~done])]
+            steps, K, W, bins = steps[done], K[done], W[done], bins[done]
+        else:
+            self._pending = []
+        total = K + W
+        if self._energy_first_total is None:
+            self._energy_first_total = float(total[0])
+        series = {"energy/kinetic": K, "energy/potential": W, "energy/total": total}
+        if self._run is not None and self._run.energy == "drift":
+            e0 = self._energy_first_total
+            series["energy_change/relative"] = (total - e0) / (abs(e0) if e0 else 1.0)
+        for entity, values in series.items():
+            keep = _envelope(bins, values) if width > 1 else np.arange(values.size)
+            self._outbox.setdefault(entity, []).append((steps[keep], values[keep]))
+        self._send_energies(final)
+
+    def _send_energies(self, final: bool) -> None:
+        """Send the kept samples in columns of at least 1000 (one chunk each, not one per call)."""
+        for entity, parts in list(self._outbox.items()):
+            if final or sum(len(p[0]) for p in parts) >= 1000:
+                self.scalar_series(entity, np.concatenate([p[1] for p in parts]),
+                                   np.concatenate([p[0] for p in parts]))
+                del self._outbox[entity]
 
     def markdown(self, entity: str, text: str, static: bool = True) -> None:
         """A markdown TextDocument under the current stage (not the current run)."""
         path = f"/{self._stage}/{entity}" if self._stage else f"/{entity}"
         self._rec.log(path, rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN), static=static)
+        if self.stages:
+            st = self.stages[-1]
+            if entity == "results":
+                st.has_results = True
+            elif entity != "narrative" and entity not in st.docs:
+                st.docs.append(entity)
 
     def mark(self, text: str, level: str = "WARN") -> None:
         """A time-stamped event at the current run (e.g. 'blew up here')."""
         self._rec.log(self._path("events"), rr.TextLog(text, level=level))
+        if self._run is not None:
+            self._run.has_events = True
+        if self.stages:
+            self.stages[-1].events = True
 
-    # --- lifetime -----------------------------------------------------------------
-    def close(self, keep: bool = True) -> Path | None:
-        """Flush, finish the file and move it onto the final name (or delete it)."""
+    # --- layout and lifetime --------------------------------------------------------
+    def blueprint(self, active: int | None = None) -> rrb.Blueprint:
+        """The viewer layout for what has been recorded so far (see :func:`lesson_blueprint`)."""
+        return lesson_blueprint(self.stages, active, self.title)
+
+    def close(self, keep: bool = True, active: int | None = None) -> Path | None:
+        """Send the layout, flush, finish the file and move it onto the final name (or delete it)."""
         if self._closed:
             return self.path if keep else None
         self._closed = True
         try:
+            self._end_run()
+            if self.stages:
+                self._rec.send_blueprint(self.blueprint(active), make_active=True, make_default=True)
             self._rec.flush()
             self._rec.disconnect()
         finally:
-            if keep and self._tmp.exists():
-                os.replace(self._tmp, self.path)
-            elif self._tmp.exists():
-                self._tmp.unlink()
+            if self._tmp is not None:
+                if keep and self._tmp.exists():
+                    os.replace(self._tmp, self.path)
+                elif self._tmp.exists():
+                    self._tmp.unlink()
         return self.path if keep else None
+
+
+def _corners(px: np.ndarray, py: np.ndarray, tol: float = 1e-4) -> np.ndarray:
+    """Indices of the points of the polyline (px, py) to draw: all but the inner points of
+    stretches at rest (|py| below ``tol`` times the curve's height at the point and both its
+    neighbours), so a rod at rest ahead of and behind a pulse is drawn by its ends alone."""
+    n = px.size
+    if n < 3:
+        return np.arange(n)
+    height = float(np.max(np.abs(py))) or 1.0
+    flat = np.abs(py) <= tol * height
+    inner = np.r_[False, flat[:-2] & flat[1:-1] & flat[2:], False]
+    return np.flatnonzero(~inner)
+
+
+def _envelope(bins: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Indices of the lowest and highest value in each bin (in time order)."""
+    order = np.lexsort((values, bins))
+    b = bins[order]
+    first = np.r_[True, b[1:] != b[:-1]]
+    last = np.r_[b[1:] != b[:-1], True]
+    keep = np.union1d(order[first], order[last])
+    return keep
 
 
 def summarize(path: str | os.PathLike) -> dict[str, dict]:
     """Read a recording back: per entity path, its chunk count, row count, whether it has
-    static data, and the sorted ``frame`` values it was logged at. For tests and for
-    inspecting a recording without the viewer."""
+    static data, and the sorted ``progress`` (and ``step``) values it was logged at. For tests
+    and for inspecting a recording without the viewer."""
     from rerun.chunk import RrdReader
 
     out: dict[str, dict] = {}
     for chunk in RrdReader(str(path)).stream():
-        info = out.setdefault(chunk.entity_path, dict(chunks=0, rows=0, static_chunks=0, frames=[],
+        info = out.setdefault(chunk.entity_path, dict(chunks=0, rows=0, static_chunks=0, frames=[], steps=[],
                                                       components=set()))
         batch = chunk.to_record_batch()
         info["chunks"] += 1
         info["rows"] += batch.num_rows
         info["static_chunks"] += int(chunk.is_static)
         info["components"].update(n for n in batch.schema.names if ":" in n)
-        if "frame" in batch.schema.names:
-            info["frames"].extend(batch.column("frame").to_pylist())
+        if "progress" in batch.schema.names:
+            info["frames"].extend(batch.column("progress").to_pylist())
+        if "step" in batch.schema.names:
+            info["steps"].extend(batch.column("step").to_pylist())
     for info in out.values():
         info["frames"].sort()
+        info["steps"].sort()
     return out

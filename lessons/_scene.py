@@ -19,7 +19,7 @@ from ._framework import check_interrupt
 
 def simulate(ctx, name: str, model, state, dt: float, n_steps: int, integrator="symplectic-euler",
              every: int | None = None, energy_bound: float | None = None, observe=None, log=None,
-             energy_every: int = 1, fixed: bool = False, **integrator_options):
+             energy_every: int = 1, fixed: bool = False, view=None, **integrator_options):
     """Advance ``state`` by ``n_steps`` steps of ``integrator`` (a name, with backward-Euler
     ``integrator_options`` such as solver="cholesky", or an integrator object).
 
@@ -33,9 +33,11 @@ def simulate(ctx, name: str, model, state, dt: float, n_steps: int, integrator="
     total above ``energy_bound`` or non-finite raises BlowUpError naming that step (after
     logging everything up to it and marking it in the recording), with the CFL limit for explicit
     integrators; a linear solve of backward Euler that does not converge is reported the same
-    way, naming the solver. Every ``every`` steps (and at step 0) ``log(rec, state)`` draws the
-    geometry (if recording) and ``observe(step, state)`` is called (for measurements). Returns
-    (steps, kinetic, potential) arrays at the energy samples.
+    way, naming the solver. Every ``every`` steps (and at step 0) ``observe(step, state)`` is called
+    (for measurements); when recording, ``log(rec, state)`` draws the geometry at the frames the
+    recorder asks for (about engine.recorder.FRAMES_PER_RUN per run, whatever ``every``), and
+    ``view`` (an engine.recorder.RunView) says how the run is shown. Returns (steps, kinetic,
+    potential) arrays at the energy samples.
     """
     every = int(every or getattr(ctx.cfg, "record_every", 20))
     integ = ctx.integrator(integrator, fixed=fixed, run=name, **integrator_options)
@@ -48,12 +50,12 @@ def simulate(ctx, name: str, model, state, dt: float, n_steps: int, integrator="
                          f"{dt:.3g} s: taking {substeps} sub-steps per step")
     monitor = Monitor(integ.name, dt / substeps, energy_bound, model=model)
     advance = model_stepper(model, state, dt, integ, monitor, n_steps, energy_every, substeps, check_interrupt)
-    return recorded_run(ctx, name, dt, n_steps, every, advance, step_drawer(ctx.rec, dt, state, log, observe))
+    return recorded_run(ctx, name, dt, n_steps, every, advance, state, log, observe, view)
 
 
 def simulate_method(ctx, name: str, scene, state, dt: float, n_steps: int, method: str, every: int,
                     energy_bound: float | None = None, observe=None, log=None, fixed: bool = False,
-                    label: str | None = None):
+                    label: str | None = None, view=None):
     """Like :func:`simulate` for a ``method`` (a name) the lesson has already chosen, run by a
     many-steps kernel: the engine's for a small spring-only Model, the scene's own ``run`` for the
     rod (engine.scenes.Rod): one launch per chunk of ``every`` steps, the energies of every step.
@@ -68,16 +70,19 @@ def simulate_method(ctx, name: str, scene, state, dt: float, n_steps: int, metho
     def advance(chunk, done):
         K, W = steps(state, dt, chunk, method, energy_bound, step_offset=done)
         return np.arange(done + 1, done + chunk + 1), K, W
-    return recorded_run(ctx, name, dt, n_steps, every, advance, step_drawer(ctx.rec, dt, state, log, observe))
+    return recorded_run(ctx, name, dt, n_steps, every, advance, state, log, observe, view)
 
 
-def recorded_run(ctx, name: str, dt: float, n_steps: int, every: int, advance, draw):
+def recorded_run(ctx, name: str, dt: float, n_steps: int, every: int, advance, state, log=None, observe=None,
+                 view=None):
     """The one lesson run: the engine's run loop (engine.integrators.loop.run) in chunks of ``every``
-    steps, with the run's energies sent to the recorder as they come, ``draw(step)`` after every
-    chunk (and at 0), progress when it ends, and a blow-up drawn at its step, marked in the
-    recording and re-raised."""
+    steps, ``observe(step, state)`` after every chunk (and at 0), the run's energies sent to the
+    recorder as they come, the geometry drawn by ``log(rec, state)`` at the frames the recorder wants
+    (the chunks are cut finer when it wants more frames than ``every`` gives; the measurements are
+    taken at the same steps either way), progress when it ends, and a blow-up drawn at its step,
+    marked in the recording and re-raised."""
     rec = ctx.rec
-    rec.run(name)
+    rec.run(name, view, n_steps=n_steps, dt=dt)
 
     def on_energies(steps, K, W):
         if not rec.enabled:
@@ -88,24 +93,31 @@ def recorded_run(ctx, name: str, dt: float, n_steps: int, every: int, advance, d
             for s, k, w in zip(steps, K, W):
                 rec.energies([k], [w], dt, first_step=int(s) - 1)
 
+    draw = draw_every = None
+    if log is not None and rec.enabled:
+        draw_every = _divisor_at_most(every, rec.frame_spacing(n_steps))
+
+        def draw(step):
+            if rec.wants_frame(step, step * dt):
+                rec.set_time(step, step * dt)
+                log(rec, state)
+    on_frame = (lambda step: observe(step, state)) if observe is not None else None
     with ctx.timed(name, n_steps):
         try:
-            return run(advance, n_steps, every, on_energies, draw, check_interrupt)
+            return run(advance, n_steps, every, on_energies, on_frame, check_interrupt, draw, draw_every)
         except BlowUpError as exc:
             rec.set_time(exc.step + 1, (exc.step + 1) * dt)
             rec.mark(str(exc), level="ERROR")
             raise
 
 
-def step_drawer(rec, dt: float, state, log=None, observe=None):
-    """``draw(step)`` for a run: at simulation step ``step`` (time step * dt) ``log(rec, state)``
-    draws the geometry when recording, and ``observe(step, state)`` measures."""
-    def draw(step):
-        if log is not None and rec.enabled:
-            rec.set_time(step, step * dt)
-            log(rec, state)
-        if observe is not None:
-            observe(step, state)
-    return draw
-
-
+def _divisor_at_most(n: int, limit: int) -> int:
+    """The largest divisor of ``n`` that is at most ``limit`` (at least 1)."""
+    n = max(int(n), 1)
+    best = 1
+    for d in range(1, int(n ** 0.5) + 1):
+        if n % d == 0:
+            for c in (d, n // d):
+                if best < c <= limit:
+                    best = c
+    return best

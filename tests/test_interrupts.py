@@ -71,7 +71,7 @@ def test_a_signal_whose_exception_was_swallowed_stops_the_run_at_the_next_chunk(
     expected = KeyboardInterrupt if sig == signal.SIGINT else Terminated
     try:
         with pytest.raises(expected):
-            recorded_run(Ctx(), "run", 1e-3, 1000, 10, advance, lambda step: None)
+            recorded_run(Ctx(), "run", 1e-3, 1000, 10, advance, state=None)
     finally:
         _pending_signal.clear()
     assert chunks == [0, 10, 20]

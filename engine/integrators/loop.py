@@ -69,24 +69,35 @@ def model_stepper(model, state, dt: float, integrator, monitor: Monitor, n_total
     return advance
 
 
-def run(advance, n_steps: int, every: int, on_energies=None, on_frame=None, check_interrupt=None):
+def run(advance, n_steps: int, every: int, on_energies=None, on_frame=None, check_interrupt=None,
+        on_draw=None, draw_every: int | None = None):
     """Advance ``n_steps`` steps in chunks of ``every`` (the last may be shorter).
 
-    ``on_frame(step)`` is called at step 0 and after every chunk (to draw or measure the state);
-    ``on_energies(steps, kinetic, potential)`` after every chunk with its energy samples. On a
-    blow-up the samples up to the bad step are handed out, ``on_frame`` is called at the bad step,
-    and the error is re-raised with ``steps``/``kinetic``/``potential`` of the whole run so far.
-    Returns (steps, kinetic, potential) of the whole run."""
+    ``on_frame(step)`` is called at step 0 and after every chunk (to measure the state);
+    ``on_energies(steps, kinetic, potential)`` after every chunk with its energy samples. With
+    ``on_draw``, the chunks are ``draw_every`` steps (a divisor of ``every``) and ``on_draw(step)``
+    is called at step 0 and after each of them (to draw the state more often than it is measured;
+    ``on_frame`` still comes at the same steps). On a blow-up the samples up to the bad step are
+    handed out, ``on_frame`` and ``on_draw`` are called at the bad step, and the error is re-raised
+    with ``steps``/``kinetic``/``potential`` of the whole run so far. Returns (steps, kinetic,
+    potential) of the whole run."""
     all_s, all_k, all_w = [], [], []
+    n_steps = int(n_steps)
+    every = max(int(every), 1)
+    chunk_len = every
+    if on_draw is not None and draw_every is not None:
+        chunk_len = max(int(draw_every), 1)
+        if every % chunk_len:
+            raise ValueError(f"draw_every ({chunk_len}) must divide every ({every})")
+    if on_draw is not None:
+        on_draw(0)
     if on_frame is not None:
         on_frame(0)
     done = 0
-    n_steps = int(n_steps)
-    every = max(int(every), 1)
     while done < n_steps:
         if check_interrupt is not None:
             check_interrupt()
-        chunk = min(every, n_steps - done)
+        chunk = min(chunk_len, n_steps - done)
         try:
             steps, K, W = advance(chunk, done)
         except BlowUpError as exc:
@@ -97,6 +108,8 @@ def run(advance, n_steps: int, every: int, on_energies=None, on_frame=None, chec
                 steps = np.arange(done + 1, done + 1 + len(K))
             if on_energies is not None and len(K):
                 on_energies(np.asarray(steps), K, W)
+            if on_draw is not None:
+                on_draw(exc.step + 1)
             if on_frame is not None:
                 on_frame(exc.step + 1)
             exc.steps = np.concatenate(all_s + [np.asarray(steps, dtype=np.int64)])
@@ -109,7 +122,9 @@ def run(advance, n_steps: int, every: int, on_energies=None, on_frame=None, chec
         if on_energies is not None and len(K):
             on_energies(np.asarray(steps), np.asarray(K), np.asarray(W))
         done += chunk
-        if on_frame is not None:
+        if on_draw is not None:
+            on_draw(done)
+        if on_frame is not None and (done % every == 0 or done == n_steps):
             on_frame(done)
     if not all_s:
         return np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0)

@@ -20,6 +20,7 @@ from engine.scenes import Rod
 from .._framework import Experiment
 from .._measure import central_gradient, expect, modal_tracks, observation_steps, rod_node_strain, track_peaks
 from .._scene import simulate_method
+from engine.recorder import RunView
 
 # ------------------------------------------------------------------ scenes and runs
 
@@ -47,11 +48,14 @@ def method_label(method: str) -> str:
 
 
 def simulate(ctx, name: str, rod: Rod, state, dt: float, n_steps: int, method: str = "symplectic-euler",
-             energy_bound: float | None = None, observe=None, every: int | None = None, fixed: bool = False):
+             energy_bound: float | None = None, observe=None, every: int | None = None, fixed: bool = False,
+             label: str | None = None, energy: str = "split"):
     """Run ``n_steps`` of ``method`` (already chosen: see :func:`scene_method`) through the one
     lesson runner (``lessons._scene.simulate_method``: one many-steps launch per chunk of ``every``
     steps), drawing the rod and calling ``observe(step, t, u)`` after each chunk (and at step 0).
-    Returns (kinetic, potential) per step. A blow-up is drawn, marked in the recording and re-raised."""
+    Returns (kinetic, potential) per step. A blow-up is drawn, marked in the recording and re-raised.
+    The run's view is named ``label`` and seen from above (the rod along x, its displacement
+    drawn along y, 0.1 m for the pulse amplitude); its energy plot is ``energy`` (RunView)."""
     gain = 0.1 / max(ctx.cfg.amplitude, 1e-300)
 
     def log(rec, st):
@@ -60,7 +64,8 @@ def simulate(ctx, name: str, rod: Rod, state, dt: float, n_steps: int, method: s
 
     on_state = (lambda step, st: observe(step, step * dt, st.displacement(rod))) if observe else None
     _, K, W = simulate_method(ctx, name, rod, state, dt, n_steps, method, every or ctx.cfg.record_every,
-                              energy_bound, observe=on_state, log=log, fixed=fixed, label=method_label(method))
+                              energy_bound, observe=on_state, log=log, fixed=fixed, label=method_label(method),
+                              view=RunView(label=label or name, camera="top", energy=energy))
     return K, W
 
 
@@ -69,7 +74,7 @@ def uniform_rod(cfg, pinned=()) -> Rod:
 
 
 def run_scene(ctx, name: str, rod: Rod, u0, v0, dt: float, n_steps: int, method: str, regions=(),
-              every: int | None = None):
+              every: int | None = None, label: str | None = None):
     """A scene run from displacement u0 and velocity v0 under ``method``, following the peaks of
     ``regions`` (see :func:`lessons._measure.track_peaks`). The energy may not exceed 10x its start
     (forward Euler is stopped there and reported at the step). Returns ((tracks, u_end), predicted):
@@ -79,7 +84,7 @@ def run_scene(ctx, name: str, rod: Rod, u0, v0, dt: float, n_steps: int, method:
     st = rod.new_state(u0, v0)
     E0 = rod.energy(st.x) + rod.kinetic(st)
     tracks, obs = track_peaks(rod.p, regions)
-    simulate(ctx, name, rod, st, dt, n_steps, method, energy_bound=10 * E0, observe=obs, every=every)
+    simulate(ctx, name, rod, st, dt, n_steps, method, energy_bound=10 * E0, observe=obs, every=every, label=label)
     result = (tracks, st.displacement(rod))
     if method in SYMPLECTIC:
         return result, None
@@ -146,16 +151,16 @@ def stage_sound(ctx):
     method = scene_method(ctx)
     c, h = float(rod.wave_speed()[0]), float(rod.h[0])
     exps = [_pulse_speed(ctx, rod, method, f"right_nu{nu}", nu, 0.25, +1, f"right-moving pulse speed at nu = {nu}",
-                         id=f"pulse-speed-nu{nu}")
+                         id=f"pulse-speed-nu{nu}", label=f"pulse to the right, CFL number {nu:g}")
             for nu in (0.25, 0.5, 1.0)]
     nu = min(cfg.cfl, 1.0)
     exps.append(_pulse_speed(ctx, rod, method, "left", nu, 0.75, -1, f"left-moving pulse speed at nu = {nu}",
-                             id="pulse-speed-left"))
+                             id="pulse-speed-left", label=f"pulse to the left, CFL number {nu:g}"))
     exps += _dalembert(ctx, rod, method, nu * h / c)
     return exps
 
 
-def _pulse_speed(ctx, rod, method, name, nu, center, direction, claim, id):
+def _pulse_speed(ctx, rod, method, name, nu, center, direction, claim, id, label=None):
     """A Gaussian pulse at ``center`` launched towards ``direction`` (+1 right, -1 left) at CFL
     number ``nu``: its peak's speed over the middle of the run, against +-c."""
     cfg = ctx.cfg
@@ -164,7 +169,7 @@ def _pulse_speed(ctx, rod, method, name, nu, center, direction, claim, id):
     dt = nu * h / c
     n_steps = int(round(0.5 / c / dt))
     u0, v0 = gaussian(rod.p, center, sigma, A), -direction * c * gaussian_slope(rod.p, center, sigma, A)
-    ((track,), _), pred = run_scene(ctx, name, rod, u0, v0, dt, n_steps, method, [(0.0, 1.0, 1)])
+    ((track,), _), pred = run_scene(ctx, name, rod, u0, v0, dt, n_steps, method, [(0.0, 1.0, 1)], label=label)
     speed = lambda track: fitted_speed(track, 0.05 / c, 0.45 / c)
     return expect(ctx, method, claim, direction * c, speed(track), pred and speed(pred[0][0]), 5e-3, unit="m/s",
                   id=id)
@@ -178,7 +183,8 @@ def _dalembert(ctx, rod, method, dt):
     sigma, A = cfg.width * h, cfg.amplitude
     n_steps = int(round(0.4 / c / dt))
     ((left, right), _), pred = run_scene(ctx, "dalembert", rod, gaussian(rod.p, 0.5, sigma, A), None, dt,
-                                         n_steps, method, [(0.0, 0.5, 1), (0.5, 1.0, 1)])
+                                         n_steps, method, [(0.0, 0.5, 1), (0.5, 1.0, 1)],
+                                         label="pulse released from rest splits in two (d'Alembert)")
     speed = lambda track: fitted_speed(track, 0.1 / c, np.inf)  # once the halves have separated
     amplitude = lambda tracks: 0.5 * (tracks[0][-1][2] + tracks[1][-1][2])  # at the end
     exps = [
@@ -249,7 +255,9 @@ def _survives(ctx, rod, nu, n_steps, name, quiet=True):
             rod.run(st, nu * h / c, n_steps, "symplectic-euler", energy_bound=100 * E0)
         else:
             simulate(ctx, name, rod, st, nu * h / c, n_steps, "symplectic-euler", energy_bound=100 * E0,
-                     every=max(ctx.cfg.record_every, 100), fixed=True)
+                     every=max(ctx.cfg.record_every, 100), fixed=True,
+                     label=f"symplectic Euler, CFL number {nu:g} ({'below' if nu < 1 else 'above'} the limit 1)",
+                     energy="drift" if nu < 1 else "split")
         return None
     except BlowUpError as exc:
         return exc
@@ -306,7 +314,7 @@ def _backward_euler_energy_ratio(ctx, rod, nu) -> float:
     st = rod.new_state(gaussian(rod.p, 0.5, cfg.width * h, cfg.amplitude))
     E0 = rod.energy(st.x)
     K, W = simulate(ctx, f"backward_nu{nu:g}", rod, st, nu * h / c, 1000, "backward-euler", energy_bound=100 * E0,
-                    fixed=True)
+                    fixed=True, label=f"backward Euler, CFL number {nu:g}: stable, damped")
     return float(np.max(K + W)) / E0
 
 
@@ -343,7 +351,10 @@ def _interface_run(ctx, name, E2, rho2):
     # Stop when the reflected pulse is 0.12 m back from the interface (or the transmitted
     # one 0.12 m from the far end, whichever comes first).
     t_end = 0.25 / c1 + min(0.12 / c1, 0.35 / c2)
-    (_, u), pred = run_scene(ctx, name, rod, u0, v0, dt, int(round(t_end / dt)), method)
+    what = {"stiffer": "stiffer right half (E × 4)", "softer": "softer right half (E / 4)",
+            "denser": "denser right half (rho × 4)"}.get(name, name)
+    (_, u), pred = run_scene(ctx, name, rod, u0, v0, dt, int(round(t_end / dt)), method,
+                             label=f"{what}: Z2 = {Z2 / Z1:g} Z1, interface at p = 0.5")
     reflected = lambda u: peak(p, u, 0.0, 0.5 - 4 * sigma)[1] / A
     transmitted = lambda u: peak(p, u, 0.5 + 4 * sigma * c2 / c1, 1.0)[1] / A
     R, T = (Z1 - Z2) / (Z1 + Z2), 2 * Z1 / (Z1 + Z2)
@@ -376,7 +387,7 @@ def _smooth_rod(ctx):
     dt = 0.5 * h / float(rod.wave_speed().max())
     t_end = math.log((1 + 1.5 * 0.85) / (1 + 1.5 * 0.15)) / (1.5 * c0)  # arrival at p = 0.85
     ((track,), _), pred = run_scene(ctx, "smooth", rod, u0, v0, dt, int(t_end / dt), method, [(0.0, 1.0, 1)],
-                                    every=10)
+                                    every=10, label="smoothly stiffening rod, c(p) = c0 (1 + 1.5 p)")
 
     def local_speed(track, where):
         """(fitted speed, sqrt(E/rho) at the mean position) over 11 samples around p = where."""
