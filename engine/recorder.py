@@ -44,6 +44,7 @@ from __future__ import annotations
 import errno
 import math
 import os
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -60,6 +61,7 @@ MIN_FRAMES_PER_RUN = 20     # ... and at least, when its span allows
 RUN_GEOMETRY_BYTES = 900_000  # a run's geometry budget (bytes of arrays logged), which sets its frames
 ENERGY_SAMPLES = 2000       # energy samples per series and run at most (min and max per bin)
 PLAYBACK_SECONDS = 20.0     # a run plays in this many seconds at the viewer's 1x speed
+LIVE_PORT = 9876            # the port of the viewer a live recorder spawns (Rerun's default)
 CAMERAS = ("top", "front", "outside")
 # the energy series: name and colour (the plots name them in their titles, with no legend)
 SERIES = {"kinetic": ("kinetic", (90, 200, 90)), "potential": ("potential", (90, 150, 255)),
@@ -169,6 +171,7 @@ class RunPlan:
     hi: np.ndarray | None = None
     box0: tuple | None = None         # the first frame's box
     frames: int = 0                   # geometry frames drawn
+    aspect: float | None = None       # width/height its camera was placed for (set by the layout)
     frame_bytes: int = 0              # bytes of the first frame's arrays
     has_energy: bool = False
     has_events: bool = False
@@ -216,6 +219,7 @@ def _camera(run: RunPlan, aspect: float) -> rrb.EyeControls3D:
         radius = float(np.linalg.norm(half))
         across = upward = radius
         depth = radius
+    run.aspect = aspect
     tan = math.tan(FOV_Y / 2)
     distance = 1.12 * max(upward / tan, across / (tan * max(aspect, 1e-3))) + depth
     position = centre + distance * direction
@@ -389,11 +393,15 @@ class Recorder(NullRecorder):
             rr.set_strict_mode(True)
         sinks = [rr.FileSink(str(self._tmp))] if self._tmp else []
         self.live = bool(live)
+        self.live_error = None  # why streaming to the viewer failed, if it did
         if live:
             url = live if isinstance(live, str) else None
-            if url is None:
-                rr.spawn(connect=False, hide_welcome_screen=True)
-            sinks.append(rr.GrpcSink(url) if url else rr.GrpcSink())
+            if url is None:  # a viewer of our own, the one installed beside this Python if there is one
+                exe = Path(sys.executable).with_name("rerun")
+                rr.spawn(port=LIVE_PORT, connect=False, hide_welcome_screen=True,
+                         executable_path=str(exe) if exe.exists() else None)
+                url = f"rerun+http://127.0.0.1:{LIVE_PORT}/proxy"
+            sinks.append(rr.GrpcSink(url))
         if not sinks:
             raise ValueError("a Recorder needs a path or live=True")
         self._rec.set_sinks(*sinks)
@@ -423,7 +431,7 @@ class Recorder(NullRecorder):
         self.stages.append(StagePlan(index, title))
         self.markdown("narrative", f"# {index}. {title}\n\n{narrative}")
         if self.live:
-            self._rec.send_blueprint(self.blueprint(active=index), make_active=True, make_default=False)
+            self._send_live_layout()
 
     def run(self, name: str, view: RunView | None = None, n_steps: int | None = None,
             dt: float | None = None) -> str:
@@ -443,7 +451,14 @@ class Recorder(NullRecorder):
         if self.stages:
             self.stages[-1].runs.append(self._run)
         self._frame_tick = -1
+        if self.live:  # show the runs so far, on this stage's tab
+            self._send_live_layout()
         return self._prefix
+
+    def _send_live_layout(self) -> None:
+        if self.stages:
+            self._rec.send_blueprint(self.blueprint(active=self.stages[-1].index), make_active=True,
+                                     make_default=False)
 
     def _end_run(self) -> None:
         if self._run is not None:
@@ -500,6 +515,8 @@ class Recorder(NullRecorder):
                 if self._run.lo is not None:
                     self._run.box0 = (self._run.lo.copy(), self._run.hi.copy())
             self._run.frames += 1
+            if self.live and self._run.frames == 1:  # its view can be shown now
+                self._send_live_layout()
         self._frame_bytes = 0
 
     def _drew(self, points: np.ndarray, *arrays) -> None:
@@ -721,7 +738,12 @@ class Recorder(NullRecorder):
             self._end_run()
             if self.stages:
                 self._rec.send_blueprint(self.blueprint(active), make_active=True, make_default=True)
-            self._rec.flush()
+            try:
+                self._rec.flush()
+            except RuntimeError as exc:  # the live viewer went away: the file is still finished
+                if not self.live:
+                    raise
+                self.live_error = str(exc)
             self._rec.disconnect()
         finally:
             if self._tmp is not None:

@@ -97,8 +97,8 @@ def recorded_run(ctx, name: str, dt: float, n_steps: int, every: int, advance, s
     if log is not None and rec.enabled:
         draw_every = _divisor_at_most(every, rec.frame_spacing(n_steps))
 
-        def draw(step):
-            if rec.wants_frame(step, step * dt):
+        def draw(step, last=False):
+            if last or rec.wants_frame(step, step * dt):
                 rec.set_time(step, step * dt)
                 log(rec, state)
     on_frame = (lambda step: observe(step, state)) if observe is not None else None

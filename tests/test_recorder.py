@@ -8,7 +8,8 @@ import time
 import numpy as np
 import pytest
 
-from engine.recorder import NullRecorder, Recorder, check_writable, strain_colors, summarize
+from engine.recorder import (ENERGY_SAMPLES, FRAMES_PER_RUN, MIN_FRAMES_PER_RUN, PROGRESS_TICKS, NullRecorder,
+                             Recorder, RunView, check_writable, strain_colors, summarize)
 from lessons.rod_waves import LESSON
 from tests.helpers import ROOT, run_stage
 
@@ -21,16 +22,103 @@ def test_rod_lesson_stage_round_trip(tmp_path):
     rec.close()
     assert path.exists() and not list(tmp_path.glob(".*partial*"))
     info = summarize(path)
+    # 0.5 s at CFL number 0.25, h = 1e-3: 2000 steps; the nodes are static, their colours drawn
+    # at about FRAMES_PER_RUN frames spread over the run's 0..PROGRESS_TICKS, its last step included
     nodes = info["/stage2/right_nu0.25/rod/nodes"]
-    # 0.5 s at nu = 0.25, h = 1e-3: 2000 steps, logged every 50 steps plus step 0
-    assert nodes["rows"] == 2000 // 50 + 1
-    assert nodes["frames"][0] == 0 and nodes["frames"][-1] == 2000
+    assert nodes["static_chunks"] >= 1
+    profile = info["/stage2/right_nu0.25/rod/displacement"]
+    assert MIN_FRAMES_PER_RUN <= profile["rows"] <= FRAMES_PER_RUN + 1
+    assert profile["frames"][0] == 0 and profile["frames"][-1] == PROGRESS_TICKS
+    assert profile["steps"][0] == 0 and profile["steps"][-1] == 2000
+    # the energies: at most ENERGY_SAMPLES per series, from step 1 to the last
     energy = info["/stage2/right_nu0.25/energy/total"]
-    assert energy["rows"] == 2000 and energy["frames"][0] == 1
-    # runs follow each other on the frame timeline
-    assert info["/stage2/right_nu0.5/rod/nodes"]["frames"][0] == 2001
+    assert len(energy["steps"]) <= ENERGY_SAMPLES and energy["steps"][0] == 1 and energy["steps"][-1] == 2000
+    # every run spans the same progress range (runs of a stage play side by side)
+    assert info["/stage2/right_nu0.5/rod/displacement"]["frames"][-1] == PROGRESS_TICKS
     assert info["/stage2/narrative"]["static_chunks"] == 1
-    assert "/stage2/right_nu0.25/rod/displacement" in info
+    stage = rec.stages[0]
+    assert [r.label for r in stage.runs][:1] == ["pulse to the right, CFL number 0.25"]
+    assert all(r.has_geometry and r.keys["strain"].startswith("strain: blue") for r in stage.runs)
+
+
+def test_energy_envelope_keeps_the_extremes_of_a_fast_oscillation(tmp_path):
+    """10^5 steps of an energy exchange with a 37-step period: kept as at most ENERGY_SAMPLES
+    samples per series, and the lowest and highest values of every bin are among them, so the
+    plot shows the band the curve fills instead of an aliased slow wave."""
+    path = tmp_path / "env.rrd"
+    n = 100_000
+    s = np.arange(1, n + 1)
+    K = 1.0 + np.sin(2 * np.pi * s / 37.0)
+    W = 2.0 - K + 1e-6 * np.sin(2 * np.pi * s / 20000.0)
+    rec = Recorder(path, "test_env")
+    rec.stage(1, "s", "t")
+    rec.run("r", RunView(energy="drift"), n_steps=n, dt=1e-3)
+    for start in range(0, n, 1000):  # in chunks, as the run loop hands them out
+        rec.energies(K[start:start + 1000], W[start:start + 1000], 1e-3, first_step=start)
+    rec.close()
+    from rerun.chunk import RrdReader
+    got = {}
+    for chunk in RrdReader(str(path)).stream():
+        if chunk.entity_path.startswith("/stage1/r/energy"):
+            batch = chunk.to_record_batch()
+            col = next((c for c in batch.schema.names if c.endswith("scalars")), None)
+            if col is None:  # the series' static style
+                continue
+            vals = [v[0] for v in batch.column(col).to_pylist() if v]
+            got.setdefault(chunk.entity_path, []).extend(vals)
+    kin = np.array(got["/stage1/r/energy/kinetic"])
+    assert len(kin) <= ENERGY_SAMPLES
+    assert kin.max() == K.max() and kin.min() == K.min()
+    assert "/stage1/r/energy_change/relative" in got
+
+
+def test_blueprint_one_view_per_drawn_run_opening_where_there_is_geometry(tmp_path):
+    import rerun.blueprint as rrb  # noqa: F401
+    rec = Recorder(tmp_path / "bp.rrd", "test_bp", title="test", camera="top")
+    rec.stage(1, "no geometry", "text")
+    rec.run("measure only", n_steps=10, dt=0.1)
+    rec.energies(np.ones(10), np.ones(10), 0.1)
+    rec.markdown("results", "| a |")
+    rec.stage(2, "two rods", "text")
+    for k, name in enumerate(["a", "b"]):
+        rec.run(name, RunView(label=f"rod {name}"), n_steps=10, dt=0.1)
+        for step in (0, 10):
+            rec.set_time(step, 0.1 * step)
+            rec.rod(np.linspace(0, 1, 11) + 0.001 * step, np.linspace(0, 1, 11), np.full(11, 0.01 * (k + 1)), gain=10)
+        rec.energies(np.ones(10), np.ones(10), 0.1)
+    rec.mark("something happened")
+    bp = rec.blueprint()
+    rec.close()
+    tabs = bp.root_container
+    assert tabs.active_tab == 1  # stage 2: the first with geometry
+
+    def views(node):
+        for child in getattr(node, "contents", None) or []:
+            if hasattr(child, "class_identifier"):
+                yield child
+            elif not isinstance(child, str):
+                yield from views(child)
+
+    first, second = tabs.contents
+    assert {v.class_identifier for v in views(first)} == {"TextDocument"}  # no empty scene or plot
+    scenes = [v for v in views(second) if v.class_identifier == "3D"]
+    assert sorted(v.origin for v in scenes) == ["/stage2/a", "/stage2/b"]
+    assert all("EyeControls3D" in v.properties for v in scenes)
+    assert scenes[0].name.startswith("rod a · strain: blue −0.01")  # the key of its own fixed scale
+    assert scenes[1].name.startswith("rod b · strain: blue −0.02")
+    assert [v.class_identifier for v in views(second)].count("TimeSeries") == 2
+    assert [v.class_identifier for v in views(second)].count("TextLog") == 1
+
+
+def test_colour_scale_is_fixed_per_run_not_per_frame(tmp_path):
+    rec = Recorder(tmp_path / "c.rrd", "test_c")
+    rec.stage(1, "s", "t")
+    rec.run("r")
+    big = rec.colors(np.array([0.0, 0.5]), "signed", "strain")
+    small = rec.colors(np.array([0.0, 0.05]), "signed", "strain")  # a later, smaller frame
+    rec.close()
+    assert big[1].tolist() == [255, 0, 0]      # saturates at the first frame's 0.5
+    assert small[1].tolist() == [255, 229, 229]  # 0.05 of 0.5: a faint red, not saturated
 
 
 def test_mesh_topology_is_logged_once_as_static(tmp_path):

@@ -78,7 +78,8 @@ def run(advance, n_steps: int, every: int, on_energies=None, on_frame=None, chec
     ``on_draw``, the chunks are ``draw_every`` steps (a divisor of ``every``) and ``on_draw(step)``
     is called at step 0 and after each of them (to draw the state more often than it is measured;
     ``on_frame`` still comes at the same steps). On a blow-up the samples up to the bad step are
-    handed out, ``on_frame`` and ``on_draw`` are called at the bad step, and the error is re-raised
+    handed out, ``on_frame`` and ``on_draw(step, True)`` are called at the bad step (the True: the
+    state there must be drawn whatever the frame spacing), and the error is re-raised
     with ``steps``/``kinetic``/``potential`` of the whole run so far. Returns (steps, kinetic,
     potential) of the whole run."""
     all_s, all_k, all_w = [], [], []
@@ -109,7 +110,7 @@ def run(advance, n_steps: int, every: int, on_energies=None, on_frame=None, chec
             if on_energies is not None and len(K):
                 on_energies(np.asarray(steps), K, W)
             if on_draw is not None:
-                on_draw(exc.step + 1)
+                on_draw(exc.step + 1, True)
             if on_frame is not None:
                 on_frame(exc.step + 1)
             exc.steps = np.concatenate(all_s + [np.asarray(steps, dtype=np.int64)])
