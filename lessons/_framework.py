@@ -357,15 +357,24 @@ class StageContext:
 
 def run_lesson(lesson: Lesson, cfg, rec, stages: list[int] | None = None, out=sys.stdout,
                err=sys.stderr, quiet: bool = False, results: list | None = None,
-               stepping: Stepping | None = None) -> bool:
-    """Run the chosen stages; print and record each stage's table; return all-passed.
+               stepping: Stepping | None = None,
+               between: Callable[[int, str], bool] | None = None) -> bool:
+    """Run the chosen stages (in the order given; default: every stage); print and record each
+    stage's table; return all-passed (of the stages that ran).
 
     Results are appended to ``results`` as they are produced, so an interrupted run
     still leaves the finished stages' results to the caller.
+
+    ``between``: called after each stage but the last with the next stage's (1-based) index and
+    title, e.g. to wait for the user; when it returns False the run ends there (the remaining
+    stages are skipped, and the result is that of the stages run so far).
     """
     results = results if results is not None else []
     all_passed = True
-    for index in stages or range(1, len(lesson.stages) + 1):
+    order = list(stages) if stages else list(range(1, len(lesson.stages) + 1))
+    for position, index in enumerate(order):
+        if position and between is not None and not between(index, lesson.stages[index - 1].title):
+            break
         check_interrupt()
         stage = lesson.stages[index - 1]
         print(f"\n== {lesson.id} · stage {index}/{len(lesson.stages)}: {stage.title}", file=out, flush=True)

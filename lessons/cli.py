@@ -1,5 +1,8 @@
 """Command line: ``python -m lessons list`` and ``python -m lessons run <id>|all``.
 
+``--stage`` takes stage numbers, lists and ranges (``3``, ``2-4``, ``1,3,5``, ``2-3,5``; repeatable);
+``--pause`` waits for Enter between stages (``q`` stops there, as if the run had ended).
+
 Exit codes: 0 every experiment passed; 1 an experiment failed (or a simulation blew
 up unexpectedly); 2 bad input (one line on stderr, nothing written); 130 interrupted
 (Ctrl-C); 143 terminated (SIGTERM). On 1, 130 and 143 the recording and the results
@@ -59,6 +62,57 @@ def _number(kind: type, flag: str, meta: dict):
     return parse
 
 
+_STAGE_RANGE = re.compile(r"\s*([0-9]+)\s*(?:-\s*([0-9]+)\s*)?", re.ASCII)
+
+
+def parse_stages(values: list[str], count: int, lesson_id: str) -> list[int]:
+    """The stages that ``--stage`` values name, ascending and without repeats: each value is a
+    comma-separated list of stage numbers (``3``) and ranges (``2-4``) in 1..``count``; a
+    repeated ``--stage`` adds to the others (``["1", "3"]`` -> [1, 3]).
+    Raises UsageError naming the first bad value and the valid range."""
+    chosen: set[int] = set()
+    for text in values:
+        for piece in text.split(","):
+            m = _STAGE_RANGE.fullmatch(piece)
+            lo, hi = (int(m[1]), int(m[2] or m[1])) if m else (0, 0)
+            if not (m and 1 <= lo <= hi <= count):
+                shown = text if re.fullmatch(r"-?[0-9]+", text, re.ASCII) else repr(text)
+                raise UsageError(f"--stage must be in 1..{count} for {lesson_id}: stage numbers, a list (1,3), "
+                                 f"a range (2-3) or both (1,2-3) (got {shown})")
+            chosen.update(range(lo, hi + 1))
+    return sorted(chosen)
+
+
+def _stdin_is_tty(stream) -> bool:
+    try:
+        return stream is not None and stream.isatty()
+    except (AttributeError, ValueError, OSError):  # no stream, or a closed one
+        return False
+
+
+class _Pause:
+    """``--pause``: between two stages (and, with 'all', two lessons) wait for Enter on ``stdin``;
+    'q' (or 'quit', or end of input) stops the run there. ``stopped`` tells the caller."""
+
+    def __init__(self, stdin, out):
+        self.stdin, self.out, self.stopped = stdin, out, False
+
+    def ask(self, what: str) -> bool:
+        print(f"\npress Enter for {what}, or q + Enter to stop: ", end="", file=self.out, flush=True)
+        line = self.stdin.readline()
+        if not line:  # end of input (Ctrl-D)
+            print(file=self.out)
+        if not line or line.strip().lower() in ("q", "quit"):
+            self.stopped = True
+            print(f"stopped before {what}: the rest of the run is skipped", file=self.out, flush=True)
+            return False
+        return True
+
+    def for_lesson(self, lesson):
+        n = len(lesson.stages)
+        return lambda index, title: self.ask(f"stage {index}/{n}: {title}")
+
+
 def _add_config_options(parser: argparse.ArgumentParser, config_cls, title: str | None = None) -> None:
     group = parser.add_argument_group(title or f"lesson parameters ({config_cls.__name__})")
     defaults = config_cls()
@@ -92,8 +146,14 @@ def _run_parser(lesson_ids: list[str], lesson=None) -> argparse.ArgumentParser:
                        "130 interrupted, 143 terminated. Environment: ELASTIC_ARCH, ELASTIC_THREADS, "
                        "ELASTIC_FP, ELASTIC_CACHE_DIR set the defaults of --arch/--threads/precision/cache.")
     p.add_argument("lesson", metavar="LESSON", help="lesson id (" + ", ".join(lesson_ids) + ") or 'all'")
-    p.add_argument("--stage", type=int, default=None, metavar="N",
-                   help="run only stage N (1-based; default: every stage); needs a single lesson")
+    p.add_argument("--stage", action="append", default=None, metavar="N|A-B|LIST",
+                   help="run only these stages (1-based): a number (3), a range (2-4), a list (1,3,5) or "
+                        "both (2-3,5); repeating it adds stages (--stage 1 --stage 3); they run in "
+                        "ascending order, each once (default: every stage); needs a single lesson")
+    p.add_argument("--pause", action="store_true",
+                   help="after each stage (with 'all', also after each lesson) wait for Enter before the "
+                        "next; q + Enter (or Ctrl-D) stops there, the recording and results written as on "
+                        "a normal end; needs an interactive terminal")
     rec = p.add_mutually_exclusive_group()
     rec.add_argument("--record", metavar="PATH", default=None,
                      help="write the Rerun recording to PATH (default: recordings/<id>.rrd); with 'all', "
@@ -204,9 +264,10 @@ def _lesson_token(argv: list[str], lessons_) -> str | None:
     return None
 
 
-def run(argv: list[str], out=None, err=None) -> int:
+def run(argv: list[str], out=None, err=None, stdin=None) -> int:
     out = sys.stdout if out is None else out  # looked up per call (the streams may be redirected)
     err = sys.stderr if err is None else err
+    stdin = sys.stdin if stdin is None else stdin
     lessons_ = registry.all_lessons()
     ids = [l.id for l in lessons_]
     by_id = {l.id: l for l in lessons_}
@@ -224,11 +285,15 @@ def run(argv: list[str], out=None, err=None) -> int:
                  if getattr(args, f.name, None) is not None} if lesson else {}
     stepping = Stepping(**{f.name: getattr(args, f.name) for f in dataclasses.fields(Stepping)
                            if getattr(args, f.name, None) is not None})
+    stages = None
     if args.stage is not None:
         if len(chosen) != 1:
             raise UsageError("--stage needs a single lesson, not 'all'")
-        if not 1 <= args.stage <= len(lesson.stages):
-            raise UsageError(f"--stage must be in 1..{len(lesson.stages)} for {lesson.id} (got {args.stage})")
+        stages = parse_stages(args.stage, len(lesson.stages), lesson.id)
+    if args.pause and not _stdin_is_tty(stdin):
+        raise UsageError("--pause needs an interactive terminal (stdin is not a tty); run without --pause, "
+                         "or with --stage N to run one stage")
+    pause = _Pause(stdin, out) if args.pause else None
 
     # Validate everything before any kernel runs or any file is written.
     configs = {}
@@ -259,17 +324,24 @@ def run(argv: list[str], out=None, err=None) -> int:
     all_passed = True
     finished_paths = []
     try:
-        for l in chosen:
+        for number, l in enumerate(chosen, 1):
+            if pause is not None and number > 1 and not pause.ask(
+                    f"lesson {number}/{len(chosen)}: {l.id}, stage 1/{len(l.stages)}: {l.stages[0].title}"):
+                break
             rec = _make_recorder(l, paths[l.id])
+            # between= only with --pause (a runner stubbed in the tests may not take it)
+            extra = {} if pause is None else {"between": pause.for_lesson(l)}
             try:
-                ok = run_lesson(l, configs[l.id], rec, [args.stage] if args.stage else None,
-                                out=out, err=err, quiet=args.quiet, results=results, stepping=stepping)
+                ok = run_lesson(l, configs[l.id], rec, stages, out=out, err=err, quiet=args.quiet,
+                                results=results, stepping=stepping, **extra)
             finally:
                 final = rec.close()
             if final is not None:
                 finished_paths.append(final)
                 print(f"\nrecording: {final}  (open with: rerun {final})", file=out)
             all_passed &= ok
+            if pause is not None and pause.stopped:
+                break
     finally:
         if args.results:
             write_json_atomic(args.results, results)

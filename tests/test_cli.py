@@ -1,5 +1,8 @@
 """The command line: list, help, runs, results JSON, and one-line errors for bad input."""
+import io
 import json
+import re
+import sys
 
 import pytest
 
@@ -20,7 +23,8 @@ def test_lesson_help_explains_parameters_with_defaults_and_units(tmp_path):
     out = " ".join(r.stdout.split())
     assert "--E FLOAT Young's modulus" in out and "[N]" in out and "(default: 1.0)" in out
     assert "--rho FLOAT" in out and "[kg/m]" in out
-    for option in ("--stage", "--record", "--no-record", "--results", "--threads", "--arch", "--view", "--cfl"):
+    for option in ("--stage", "--pause", "--record", "--no-record", "--results", "--threads", "--arch", "--view",
+                   "--cfl"):
         assert option in out
 
 
@@ -133,3 +137,158 @@ def test_an_internal_error_is_one_line_and_exit_1(tmp_path, monkeypatch, capsys)
     monkeypatch.setenv("ELASTIC_DEBUG", "1")
     with pytest.raises(ZeroDivisionError):
         cli_mod.main(["run", "rod-waves", "--stage", "1", "--no-record"])
+
+
+# --------------------------------------------------------------------------------------------
+# --stage lists and ranges, --pause (in process: rod-waves' stages take well under a second)
+# --------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("values,expected", [
+    (["3"], [3]),
+    (["2-4"], [2, 3, 4]),
+    (["1,3,5"], [1, 3, 5]),
+    (["2-3,5"], [2, 3, 5]),
+    (["3-3"], [3]),
+    (["5,1-2"], [1, 2, 5]),            # ascending, whatever the order given
+    (["2-4,3", "4"], [2, 3, 4]),        # each stage once
+    (["1", "3"], [1, 3]),              # a repeated --stage adds stages
+    (["4-5", "1", "3,1"], [1, 3, 4, 5]),
+    ([" 2 - 3 , 5 "], [2, 3, 5]),
+    (["1-5"], [1, 2, 3, 4, 5]),
+])
+def test_parse_stages_takes_numbers_lists_ranges_and_repeats(values, expected):
+    from lessons.cli import parse_stages
+    assert parse_stages(values, 5, "springs") == expected
+
+
+@pytest.mark.parametrize("values,shown", [
+    (["0"], "(got 0)"), (["6"], "(got 6)"), (["-2"], "(got -2)"), (["4-2"], "(got '4-2')"),
+    (["a"], "(got 'a')"), ([""], "(got '')"), (["-"], "(got '-')"), (["1,"], "(got '1,')"),
+    (["1,,3"], "(got '1,,3')"), (["2-"], "(got '2-')"), (["-3"], "(got -3)"), (["1-6"], "(got '1-6')"),
+    (["1.5"], "(got '1.5')"), (["1-2-3"], "(got '1-2-3')"), (["\u0663"], "(got '\u0663')"),
+    (["2", "9"], "(got 9)"),
+])
+def test_parse_stages_rejects_bad_forms_naming_the_range(values, shown):
+    from lessons.cli import UsageError, parse_stages
+    with pytest.raises(UsageError) as info:
+        parse_stages(values, 5, "springs")
+    message = str(info.value)
+    assert message.startswith("--stage must be in 1..5 for springs: stage numbers, a list (1,3), a range (2-3)")
+    assert message.endswith(shown)
+
+
+def _main(monkeypatch, tmp_path, capsys, *argv, stdin=None):
+    """lessons.cli.main(argv) in tmp_path (stdin replaced when given); returns (rc, stdout, stderr)."""
+    import lessons.cli as cli_mod
+    monkeypatch.chdir(tmp_path)
+    if stdin is not None:
+        monkeypatch.setattr(sys, "stdin", stdin)
+    rc = cli_mod.main(list(argv))
+    captured = capsys.readouterr()
+    return rc, captured.out, captured.err
+
+
+def _stages_run(out, lesson="rod-waves"):
+    """The stage numbers whose headers ("== <id> · stage i/n: title") the output shows, in order."""
+    return [int(i) for i in re.findall(rf"^== {re.escape(lesson)} · stage (\d+)/\d+: ", out, re.MULTILINE)]
+
+
+@pytest.mark.parametrize("argv,needle", [
+    (["--stage", "7"], "--stage must be in 1..4 for rod-waves: stage numbers, a list (1,3), a range (2-3) "
+                       "or both (1,2-3) (got 7)"),
+    (["--stage", "0"], "--stage must be in 1..4 for rod-waves: "),
+    (["--stage", "4-2"], "--stage must be in 1..4 for rod-waves: "),
+    (["--stage", "a"], "(got 'a')"),
+    (["--stage", ""], "(got '')"),
+    (["--stage", "-"], "(got '-')"),
+    (["--stage=1,"], "(got '1,')"),
+    (["--stage", "1", "--stage", "5"], "--stage must be in 1..4 for rod-waves: "),  # each repeat is checked
+    (["--stage", "2-9"], "(got '2-9')"),
+])
+def test_bad_stage_values_are_one_line_exit_2_and_write_nothing(monkeypatch, tmp_path, capsys, argv, needle):
+    import lessons.cli as cli_mod
+    monkeypatch.setattr(cli_mod, "run_lesson", lambda *a, **k: pytest.fail("a stage ran"))
+    rc, out, err = _main(monkeypatch, tmp_path, capsys, "run", "rod-waves", *argv, "--results", "res.json")
+    assert rc == 2
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("python -m lessons: error: --stage must be in 1..4"), err
+    assert needle in lines[0]
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_stage_with_all_is_still_refused(monkeypatch, tmp_path, capsys):
+    rc, out, err = _main(monkeypatch, tmp_path, capsys, "run", "all", "--stage", "1-2", "--no-record")
+    assert rc == 2 and "--stage needs a single lesson, not 'all'" in err and len(err.strip().splitlines()) == 1
+
+
+def test_stage_list_and_repeats_run_those_stages_in_ascending_order(monkeypatch, tmp_path, capsys):
+    rc, out, err = _main(monkeypatch, tmp_path, capsys, "run", "rod-waves", "--stage", "4,1", "--stage", "1-1",
+                         "--no-record", "--quiet", "--results", "res.json")
+    assert rc == 0, err
+    assert _stages_run(out) == [1, 4]
+    rows = json.loads((tmp_path / "res.json").read_text())
+    assert sorted({row["stage"] for row in rows}) == [1, 4]
+
+
+class _FakeTty(io.StringIO):
+    """What the user types, on a stream that says it is a terminal."""
+
+    def isatty(self):
+        return True
+
+
+@pytest.mark.parametrize("stdin", [io.StringIO("\n"), None])
+def test_pause_is_refused_when_stdin_is_not_a_tty(monkeypatch, tmp_path, capsys, stdin):
+    import lessons.cli as cli_mod
+    monkeypatch.setattr(cli_mod, "run_lesson", lambda *a, **k: pytest.fail("a stage ran"))
+    monkeypatch.setattr(sys, "stdin", stdin)  # None: no stdin at all (e.g. a detached process)
+    rc, out, err = _main(monkeypatch, tmp_path, capsys, "run", "rod-waves", "--pause", "--results", "res.json")
+    assert rc == 2
+    assert err.strip().splitlines() == [
+        "python -m lessons: error: --pause needs an interactive terminal (stdin is not a tty); run without "
+        "--pause, or with --stage N to run one stage"]
+    assert list(tmp_path.iterdir()) == []  # neither recordings/ nor res.json
+
+
+def test_pause_waits_for_enter_between_stages_and_q_stops(monkeypatch, tmp_path, capsys):
+    stdin = _FakeTty("\nq\n")
+    rc, out, err = _main(monkeypatch, tmp_path, capsys, "run", "rod-waves", "--stage", "1-2,4", "--pause",
+                         "--no-record", "--quiet", "--results", "res.json", stdin=stdin)
+    assert rc == 0, err
+    assert _stages_run(out) == [1, 2]
+    assert "press Enter for stage 2/4: sound waves, or q + Enter to stop" in out
+    assert "press Enter for stage 4/4: a heterogeneous rod, or q + Enter to stop" in out
+    assert out.index("stage 1/4: energy") < out.index("press Enter for stage 2/4") < out.index("== rod-waves · stage 2/4")
+    assert "stopped before stage 4/4" in out
+    assert stdin.read() == ""  # both answers read, nothing more asked
+    rows = json.loads((tmp_path / "res.json").read_text())
+    assert sorted({row["stage"] for row in rows}) == [1, 2]
+    assert re.search(r"^(\d+) of \1 experiments passed$", out, re.MULTILINE)
+
+
+def test_pause_stops_at_end_of_input_and_keeps_the_exit_code_of_what_ran(monkeypatch, tmp_path, capsys):
+    # stage 2 fails on a 2-node-wide pulse; Ctrl-D (end of input) at the prompt stops like q
+    rc, out, err = _main(monkeypatch, tmp_path, capsys, "run", "rod-waves", "--stage", "2,4", "--width", "2",
+                         "--pause", "--no-record", "--quiet", "--results", "res.json", stdin=_FakeTty(""))
+    assert rc == 1
+    assert _stages_run(out) == [2]
+    assert "stopped before stage 4/4" in out and "FAILED" in out
+    rows = json.loads((tmp_path / "res.json").read_text())  # written as on a normal end
+    assert {row["stage"] for row in rows} == {2} and not all(row["passed"] for row in rows)
+
+
+def test_pause_with_all_pauses_between_stages_and_between_lessons(monkeypatch, tmp_path, capsys):
+    import lessons.cli as cli_mod
+    from lessons import registry
+    first, second = registry.all_lessons()[:2]
+    n = len(registry.all_lessons())
+    answers = "\n" * (len(first.stages) - 1) + "q\n"
+    rc, out, err = _main(monkeypatch, tmp_path, capsys, "run", "all", "--pause", "--no-record", "--quiet",
+                         stdin=_FakeTty(answers))
+    assert rc == 0, err
+    assert _stages_run(out, first.id) == list(range(1, len(first.stages) + 1))
+    assert f"== {second.id}" not in out
+    assert out.count("press Enter for stage ") == len(first.stages) - 1
+    assert (f"press Enter for lesson 2/{n}: {second.id}, stage 1/{len(second.stages)}: {second.stages[0].title}, "
+            f"or q + Enter to stop") in out
+    assert "stopped before lesson 2/" in out
