@@ -66,8 +66,8 @@ CAMERAS = ("top", "front", "outside")
 # the energy series: name and colour (the plots name them in their titles, with no legend)
 SERIES = {"kinetic": ("kinetic", (90, 200, 90)), "potential": ("potential", (90, 150, 255)),
           "total": ("total", (235, 235, 235)), "relative": ("(E - E1) / |E1|", (255, 190, 60))}
-ENERGY_PLOT_NAME = "energy (J): kinetic green · potential blue · total white"
-DRIFT_PLOT_NAME = "total energy, relative change from step 1"
+ENERGY_PLOT_NAME = "J: K green · W blue · E white"
+DRIFT_PLOT_NAME = "(E − E1) / |E1|: drift of the total energy"
 FOV_Y = math.radians(55.0)  # the 3D view's vertical field of view (the viewer's default)
 
 
@@ -262,7 +262,7 @@ def stage_view(stage: StagePlan, lesson_title: str = "") -> rrb.Container:
     cells = []
     for run in runs:
         has_plot = run.energy is not None and run.has_energy
-        scene_w = cell_w * (0.72 if (has_plot and strip) else 1.0)
+        scene_w = cell_w * (0.675 if (has_plot and strip) else 1.0)
         scene_h = cell_h * (0.7 if (has_plot and not strip) else 1.0) - 24  # title bar
         key = "; ".join(run.keys.values())
         scene = rrb.Spatial3DView(origin=run.entity, name=run.label + (f" · {key}" if key else ""),
@@ -277,7 +277,7 @@ def stage_view(stage: StagePlan, lesson_title: str = "") -> rrb.Container:
         else:
             plot = rrb.TimeSeriesView(origin=f"{run.entity}/energy", name=ENERGY_PLOT_NAME,
                                       plot_legend=rrb.PlotLegend(visible=False))
-        cells.append(rrb.Horizontal(scene, plot, column_shares=[3, 1.2]) if strip
+        cells.append(rrb.Horizontal(scene, plot, column_shares=[2.7, 1.3]) if strip
                      else rrb.Vertical(scene, plot, row_shares=[2.3, 1]))
     grid = rrb.Grid(*cells, grid_columns=columns)
     left = rrb.Vertical(grid, results, row_shares=[2.4, 1])

@@ -49,18 +49,25 @@ def method_label(method: str) -> str:
 
 def simulate(ctx, name: str, rod: Rod, state, dt: float, n_steps: int, method: str = "symplectic-euler",
              energy_bound: float | None = None, observe=None, every: int | None = None, fixed: bool = False,
-             label: str | None = None, energy: str = "split"):
+             label: str | None = None, energy: str = "split", interface: float | None = None):
     """Run ``n_steps`` of ``method`` (already chosen: see :func:`scene_method`) through the one
     lesson runner (``lessons._scene.simulate_method``: one many-steps launch per chunk of ``every``
     steps), drawing the rod and calling ``observe(step, t, u)`` after each chunk (and at step 0).
     Returns (kinetic, potential) per step. A blow-up is drawn, marked in the recording and re-raised.
     The run's view is named ``label`` and seen from above (the rod along x, its displacement
-    drawn along y, 0.1 m for the pulse amplitude); its energy plot is ``energy`` (RunView)."""
+    drawn along y, 0.1 m for the pulse amplitude), with a grey line at ``interface`` if given; its
+    energy plot is ``energy`` (RunView)."""
     gain = 0.1 / max(ctx.cfg.amplitude, 1e-300)
+
+    marks = []
 
     def log(rec, st):
         x = st.positions()
         rec.rod(x, rod.p, rod_node_strain(x, rod.p), gain=gain)
+        if interface is not None and not marks:  # once: it stays drawn
+            marks.append(True)
+            rec.line_strips("interface", [[[interface, -0.04, 0.0], [interface, 0.12, 0.0]]],
+                            colors=[[150, 150, 150]], radii=0.002)
 
     on_state = (lambda step, st: observe(step, step * dt, st.displacement(rod))) if observe else None
     _, K, W = simulate_method(ctx, name, rod, state, dt, n_steps, method, every or ctx.cfg.record_every,
@@ -74,7 +81,7 @@ def uniform_rod(cfg, pinned=()) -> Rod:
 
 
 def run_scene(ctx, name: str, rod: Rod, u0, v0, dt: float, n_steps: int, method: str, regions=(),
-              every: int | None = None, label: str | None = None):
+              every: int | None = None, label: str | None = None, interface: float | None = None):
     """A scene run from displacement u0 and velocity v0 under ``method``, following the peaks of
     ``regions`` (see :func:`lessons._measure.track_peaks`). The energy may not exceed 10x its start
     (forward Euler is stopped there and reported at the step). Returns ((tracks, u_end), predicted):
@@ -84,7 +91,8 @@ def run_scene(ctx, name: str, rod: Rod, u0, v0, dt: float, n_steps: int, method:
     st = rod.new_state(u0, v0)
     E0 = rod.energy(st.x) + rod.kinetic(st)
     tracks, obs = track_peaks(rod.p, regions)
-    simulate(ctx, name, rod, st, dt, n_steps, method, energy_bound=10 * E0, observe=obs, every=every, label=label)
+    simulate(ctx, name, rod, st, dt, n_steps, method, energy_bound=10 * E0, observe=obs, every=every, label=label,
+             interface=interface)
     result = (tracks, st.displacement(rod))
     if method in SYMPLECTIC:
         return result, None
@@ -354,7 +362,7 @@ def _interface_run(ctx, name, E2, rho2):
     what = {"stiffer": "stiffer right half (E × 4)", "softer": "softer right half (E / 4)",
             "denser": "denser right half (rho × 4)"}.get(name, name)
     (_, u), pred = run_scene(ctx, name, rod, u0, v0, dt, int(round(t_end / dt)), method,
-                             label=f"{what}: Z2 = {Z2 / Z1:g} Z1, interface at p = 0.5")
+                             label=f"{what}: Z2 = {Z2 / Z1:g} Z1, interface (grey) at p = 0.5", interface=0.5)
     reflected = lambda u: peak(p, u, 0.0, 0.5 - 4 * sigma)[1] / A
     transmitted = lambda u: peak(p, u, 0.5 + 4 * sigma * c2 / c1, 1.0)[1] / A
     R, T = (Z1 - Z2) / (Z1 + Z2), 2 * Z1 / (Z1 + Z2)
