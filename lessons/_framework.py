@@ -282,7 +282,7 @@ class Lesson:
     config: type
     stages: list[Stage]
     order: int = 100
-    view: str = "3d"
+    camera: str = "outside"  # the default camera of its runs' views (engine.recorder.CAMERAS)
     validate: Callable[[Any], None] | None = None  # extra up-front checks (e.g. build meshes)
 
 

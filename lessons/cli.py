@@ -166,7 +166,9 @@ def _run_parser(lesson_ids: list[str], lesson=None) -> argparse.ArgumentParser:
                    help="CPU threads for Taichi (default: 2, or $ELASTIC_THREADS)")
     p.add_argument("--arch", default=None, metavar="NAME",
                    help="Taichi backend: cpu, cuda or vulkan (default: cpu, or $ELASTIC_ARCH)")
-    p.add_argument("--view", action="store_true", help="open the recording in the Rerun viewer afterwards")
+    p.add_argument("--view", action="store_true",
+                   help="stream the run live into a Rerun viewer (started for it) that shows each stage as it "
+                        "runs; the recording is written as well unless --no-record (needs a display)")
     p.add_argument("--quiet", action="store_true", help="print only the tables, not the narratives and progress")
     _add_config_options(p, Stepping, "time stepping (every lesson; runs that test one particular integrator "
                                      "keep it and are marked [fixed] in the stage's integrator line)")
@@ -222,21 +224,18 @@ def _check_results_path(path: Path) -> None:
         raise UsageError(f"--results {path}: cannot write there (the directory must exist and be writable)")
 
 
-def _view(path: Path | None, out) -> None:
-    if path is None:
-        print("--view: nothing to show (--no-record was given)", file=out)
-        return
-    viewer = shutil.which("rerun") or str(Path(sys.executable).with_name("rerun"))
+def _live_viewer(args, paths: dict, out) -> bool:
+    """Whether ``--view`` can stream into a viewer here (a display on Linux); if not, say so in
+    one line and record to the file only."""
+    if not args.view:
+        return False
     if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
-        print(f"--view: cannot start the Rerun viewer: no display (DISPLAY is not set). "
-              f"Open the recording on a machine with a screen: rerun {path}", file=out)
-        return
-    try:
-        subprocess.Popen([viewer, str(path)], stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                         stderr=subprocess.DEVNULL, start_new_session=True)
-        print(f"--view: opened the Rerun viewer on {path}", file=out)
-    except OSError as exc:
-        print(f"--view: cannot start the Rerun viewer ({exc}); open it later with: rerun {path}", file=out)
+        where = " ".join(str(p) for p in paths.values() if p is not None)
+        print("--view: cannot start the Rerun viewer: no display (DISPLAY is not set); "
+              + (f"recording to the file only. Open it on a machine with a screen: rerun {where}" if where
+                 else "nothing is recorded (--no-record)."), file=out)
+        return False
+    return True
 
 
 def _lesson_token(argv: list[str], lessons_) -> str | None:
@@ -320,6 +319,7 @@ def run(argv: list[str], out=None, err=None, stdin=None) -> int:
         if p is not None:
             _check_output("--record", p)
 
+    live = _live_viewer(args, paths, out)
     results: list[dict] = []
     all_passed = True
     finished_paths = []
@@ -328,7 +328,7 @@ def run(argv: list[str], out=None, err=None, stdin=None) -> int:
             if pause is not None and number > 1 and not pause.ask(
                     f"lesson {number}/{len(chosen)}: {l.id}, stage 1/{len(l.stages)}: {l.stages[0].title}"):
                 break
-            rec = _make_recorder(l, paths[l.id])
+            rec = _make_recorder(l, paths[l.id], live)
             # between= only with --pause (a runner stubbed in the tests may not take it)
             extra = {} if pause is None else {"between": pause.for_lesson(l)}
             try:
@@ -336,6 +336,9 @@ def run(argv: list[str], out=None, err=None, stdin=None) -> int:
                                 results=results, stepping=stepping, **extra)
             finally:
                 final = rec.close()
+                if getattr(rec, "live_error", None):
+                    print(f"--view: the live viewer stopped receiving ({rec.live_error}); the recording "
+                          f"file is complete", file=err)
             if final is not None:
                 finished_paths.append(final)
                 print(f"\nrecording: {final}  (open with: rerun {final})", file=out)
@@ -348,18 +351,17 @@ def run(argv: list[str], out=None, err=None, stdin=None) -> int:
     n_fail = sum(not r["passed"] for r in results)
     print(f"\n{len(results) - n_fail} of {len(results)} experiments passed"
           + ("" if n_fail == 0 else f"; {n_fail} FAILED"), file=out)
-    if args.view:
-        for p in finished_paths or [None]:
-            _view(p, out)
     return EXIT_OK if all_passed else EXIT_FAILED
 
 
-def _make_recorder(lesson, path):
-    from engine.recorder import NullRecorder, Recorder, lesson_blueprint
-    if path is None:
+def _make_recorder(lesson, path, live: bool = False):
+    """The lesson's recorder: the file at ``path`` (None: no file), streaming into a viewer that
+    follows the stage being run when ``live``."""
+    from engine.recorder import NullRecorder, Recorder
+    if path is None and not live:
         return NullRecorder()
-    blueprint = lesson_blueprint([(i, s.title) for i, s in enumerate(lesson.stages, 1)], lesson.view)
-    return Recorder(path, "elastic_lessons_" + lesson.id.replace("-", "_"), blueprint=blueprint)
+    return Recorder(path, "elastic_lessons_" + lesson.id.replace("-", "_"), title=f"{lesson.id}: {lesson.title}",
+                    camera=lesson.camera, live=live)
 
 
 def main(argv: list[str] | None = None) -> int:
