@@ -9,7 +9,9 @@ start-up (Taichi initialises once per process):
 3. the headline sweep (bench/headline.py): cost per simulated second against E.
 
 Then bench/report/ merges them into ``<out>/<timestamp>.json``, ``<timestamp>.md`` and PNG
-plots, with copies ``latest.md``, ``latest.json``, ``latest-*.png``.  Raw inputs and logs stay in
+plots, with copies ``latest.md``, ``latest.json``, ``latest-*.png`` (all in bench/results/, which git
+ignores: a run never changes a tracked file; the committed reference is bench/reference/, written
+only by ``python -m bench.report RAW --reference``).  Raw inputs and logs stay in
 ``<out>/raw/<timestamp>/``; pytest-benchmark's own storage (for ``--benchmark-compare``) in
 ``<out>/storage/<config>/``.
 

@@ -3,6 +3,7 @@ synthetic benchmark data into the JSON, Markdown and PNG files with the derived 
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -106,3 +107,22 @@ def test_report_writer_on_synthetic_data(tmp_path):
     assert "T-cost_vs_E.png" in md and "latest-cost_vs_E.png" in paths["latest_md"].read_text()
     assert "**missed** (1.2x over)" in md
     assert json.loads(paths["json"].read_text())["targets"][1]["met"] is True
+
+
+def test_a_benchmark_run_writes_only_untracked_files():
+    """python -m bench writes under its default --out (bench/results), which git ignores and
+    which holds no tracked file; the committed reference lives elsewhere."""
+    import subprocess
+    from bench.__main__ import parse_args
+    from bench.report import REFERENCE_DIR, REPO
+
+    out = Path(parse_args([]).out).resolve()
+    assert out == (REPO / "bench" / "results").resolve()
+    git = lambda *a: subprocess.run(["git", *a], cwd=REPO, capture_output=True, text=True)
+    if git("rev-parse", "--is-inside-work-tree").returncode != 0:
+        pytest.skip("not a git checkout")
+    assert git("ls-files", str(out)).stdout.strip() == ""
+    for name in ("x.json", "x.md", "latest.md", "latest-cost_vs_E.png", "raw/x/run.json"):
+        assert git("check-ignore", "-q", str(out / name)).returncode == 0, name
+    assert (REFERENCE_DIR / "report.md").exists()
+    assert git("ls-files", str(REFERENCE_DIR / "report.md")).stdout.strip()

@@ -30,6 +30,10 @@ __all__ = ["ALL_KERNELS", "CONFIGS", "STARTUP_RUNS", "STEP_KERNELS", "TARGET_EXP
            "targets", "write"]
 
 
+REPO = Path(__file__).resolve().parents[2]
+REFERENCE_DIR = REPO / "bench" / "reference"  # the committed report (python -m bench.report RAW --reference)
+
+
 def write(doc: dict, out_dir, stem: str, latest: bool = True) -> dict:
     """Write <stem>.json, <stem>.md, <stem>-cost_vs_E.png, <stem>-cost_vs_N.png into out_dir, and
     copies named latest.* (the Markdown copy links the latest-*.png).  Returns the paths."""
@@ -67,9 +71,15 @@ def main(argv=None) -> int:
     ap.add_argument("raw", help="a raw directory written by python -m bench")
     ap.add_argument("--out", help="output directory (default: two levels above RAW_DIR, i.e. bench/results)")
     ap.add_argument("--no-latest", action="store_true", help="do not overwrite the latest.* copies")
+    ap.add_argument("--reference", action="store_true",
+                    help=f"write the report as the committed reference instead ({REFERENCE_DIR.relative_to(REPO)}/"
+                         f"report.*, which the README shows); nothing else is written")
     args = ap.parse_args(argv)
     raw = Path(args.raw).resolve()
     doc = build(raw)
-    paths = write(doc, Path(args.out) if args.out else raw.parent.parent, raw.name, latest=not args.no_latest)
+    if args.reference:
+        paths = write(doc, REFERENCE_DIR, "report", latest=False)
+    else:
+        paths = write(doc, Path(args.out) if args.out else raw.parent.parent, raw.name, latest=not args.no_latest)
     print(paths["md"])
     return 0
