@@ -116,6 +116,42 @@ def test_stage5_records_the_stretched_strips(tmp_path):
     assert "Mesh3D:vertex_colors" in info["/stage5/equilateral_strip/mesh"]["components"]
 
 
+def test_stage2_records_each_wave_in_its_own_view_coloured_by_its_displacement(tmp_path):
+    """P and S waves along x and y each draw a mesh (no springs) of tens of frames over the S waves'
+    time, coloured by the component the wave carries on the fixed scale A = strain / k."""
+    from engine.recorder import Recorder, summarize
+    rec = Recorder(tmp_path / "a.rrd", "test")
+    assert_all_passed(run_stage(LESSON, 2, rec=rec))
+    rec.close()
+    info = summarize(tmp_path / "a.rrd")
+    cfg = AreaSpringsConfig()
+    A = cfg.strain * cfg.wavelength / (2 * math.pi)
+    runs = {r.name: r for r in rec.stages[-1].runs}
+    carried = {"P_along_x": "u_x", "S_along_x": "u_y", "P_along_y": "u_y", "S_along_y": "u_x"}
+    for name, component in carried.items():
+        run = runs[name]
+        assert run.camera == "top" and run.energy is None and run.label.startswith(f"{name[0]} wave along {name[-1]}")
+        assert list(run.scales) == [f"{component} (m)"] and run.scales[f"{component} (m)"] == pytest.approx(A)
+        assert run.span == pytest.approx(runs["S_along_x"].span)
+        mesh = info[f"/stage2/{name}/mesh"]
+        assert "Mesh3D:vertex_colors" in mesh["components"] and len(set(mesh["frames"])) >= 10
+        assert f"/stage2/{name}/springs" not in info
+    # the P waves end sooner on the shared timeline
+    assert max(info["/stage2/P_along_x/mesh"]["frames"]) < 0.7 * max(info["/stage2/S_along_x/mesh"]["frames"])
+
+
+def test_displacement_component_names_the_axis_or_the_wave_direction():
+    from lessons.area_springs.stages import displacement_component
+    a, name = displacement_component([1.0, 0.0], [0.0, -1.0])  # S along x
+    assert name == "u_y (m)" and np.allclose(a, [0, 1, 0])
+    a, name = displacement_component([1, 1, 1] / np.sqrt(3), [-1, -1, -1] / np.sqrt(3))  # P along (1,1,1)
+    assert name == "u_n (m)" and np.allclose(a, np.ones(3) / np.sqrt(3))
+    a, name = displacement_component([1.0, 0.0, 0.0], [0.95, 0.22, 0.22])  # quasi-P along x
+    assert name == "u_x (m)" and np.allclose(a, [1, 0, 0])
+    a, name = displacement_component([1.0, 0.0, 0.0], [0.2, 0.7, 0.7])  # quasi-S along x
+    assert name == "u_t (m)" and a[0] == 0 and np.allclose(a, [0, 1, 1] / np.sqrt(2))
+
+
 def test_config_rejects_a_stretch_longer_than_a_spacing():
     with pytest.raises(ParameterError, match="--strain"):
         LESSON.validate(AreaSpringsConfig(strain=0.01, strip_cells=200))

@@ -334,3 +334,41 @@ def test_forward_euler_pulse_is_stopped_at_the_step():
     with pytest.raises(errors.BlowUpError, match="forward Euler adds energy") as info:
         run_stage(LESSON, 4, stepping=dict(integrator="forward-euler"), **SMALL)
     assert 0 < info.value.step < 1000
+
+
+def test_stage2_views_frame_each_run(tmp_path):
+    """The chains are seen from the front, the drifting frame about its centre of mass (its drawn
+    box stays about its own size over the run), and forward Euler's view spans its first 1000 steps,
+    drawn every few steps up to where it is stopped."""
+    from engine.recorder import Recorder, summarize
+    rec = Recorder(tmp_path / "a.rrd", "test")
+    assert_all_passed(run_stage(LESSON, 2, rec=rec, steps=20_000))
+    rec.close()
+    runs = {r.name: r for r in rec.stages[-1].runs if r.has_geometry}
+    assert set(runs) == {f"{net}_{m}" for net in ("chain", "frame") for m in ("symplectic-euler", "velocity-verlet")
+                         } | {"chain_forward-euler"}
+    for name, run in runs.items():
+        assert run.camera == ("front" if name.startswith("chain") else "outside")
+        assert run.energy == ("drift" if name.startswith("frame") else "split")
+        assert list(run.scales) == ["strain"] and run.frames >= 100
+        if name.startswith("frame"):
+            assert np.max(run.hi - run.lo) < 0.5  # the frame is 0.2 m; it drifts 1 m over these steps
+    fe = runs["chain_forward-euler"]
+    info = summarize(tmp_path / "a.rrd")
+    ticks = info["/stage2/chain_forward-euler/springs"]["frames"]
+    assert 100 < max(ticks) < 1000 and len(ticks) > 100  # one tick per step: stopped after a few hundred
+    assert fe.span == pytest.approx(runs["chain_symplectic-euler"].span / 20)
+
+
+def test_stage5_draws_the_rod_unloaded_and_hanging_side_by_side(tmp_path):
+    from engine.recorder import Recorder, summarize
+    rec = Recorder(tmp_path / "a.rrd", "test")
+    assert_all_passed(run_stage(LESSON, 5, rec=rec))
+    rec.close()
+    info = summarize(tmp_path / "a.rrd")
+    for kind in ("uniform", "graded"):
+        for body in ("unloaded", "hanging"):
+            assert f"/stage5/hanging_{kind}/{body}/springs" in info
+        assert info[f"/stage5/hanging_{kind}/labels"]["static_chunks"] == 1
+    run = rec.stages[-1].runs[0]
+    assert run.camera == "front" and run.scales["strain"] == pytest.approx(9.81 * 1.0 / 100.0, rel=1e-3)

@@ -29,7 +29,6 @@ class AreaSpringsConfig:
     strain: float = param(1e-3, "peak strain of the waves and the stretch of stage 5", gt=0, le=0.01)
     strip_cells: int = param(80, "length of the stage-5 strip in lattice spacings (width: a quarter)", ge=40, le=240)
     cfl: float = param(0.5, "time step as a fraction of the engine's Gershgorin CFL estimate", gt=0, le=1)
-    frames: int = param(5, "geometry frames recorded per displayed run", ge=1, le=12)
 
 
 def _validate(cfg):

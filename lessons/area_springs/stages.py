@@ -15,6 +15,7 @@ import numpy as np
 
 from engine import mesh as M
 from engine.model import Model
+from engine.recorder import RunView
 from engine.stability import stable_dt_estimate
 from engine.waves import (ModeProbe, cauchy_born_tensor, christoffel, max_speed, phase_frequency,
                           relaxed_stiffness_2d, young_poisson)
@@ -31,6 +32,7 @@ BE_PHASE_STEP = 0.05  # w dt of the backward-Euler runs: phase lag 1 - arctan(w 
 BE_PHASE_LAG = 1e-3   # the bound on that lag, a tenth of the tightest tolerance (1e-2) of the speeds
 BE_DAMPING_TOL = 0.03  # fitted / predicted decay rate: the decay over a run is only ~5%, and the probe
                        # also sees a little of other motion (up to 1.7% measured on the regular meshes)
+DRAWN_AMPLITUDE = 1 / 24  # a drawn wave's displacement amplitude, in wavelengths (the true one: strain/(2 pi))
 
 
 # ------------------------------------------------------------------ meshes and runs
@@ -53,12 +55,58 @@ def bulk_tensor(mesh: M.Mesh, c: np.ndarray, h: float) -> np.ndarray:
     return cauchy_born_tensor(X, e[inside], c[inside], 27 * h ** 3)
 
 
+def wave_steps(ctx, model: Model, k: float, c_guess: float) -> tuple[bool, float, int]:
+    """(implicit, dt, n_steps) of a standing-wave run (see :func:`standing_wave`)."""
+    implicit = ctx.integrator_name("velocity-verlet") == "backward-euler"
+    dt = BE_PHASE_STEP / (k * c_guess) if implicit else ctx.cfg.cfl * stable_dt_estimate(model)
+    n_steps = max(8, int(math.ceil(RUN_PERIODS * 2 * math.pi / (k * c_guess) / dt)))
+    return implicit, dt, n_steps
+
+
+def wave_time(ctx, model: Model, k: float, c_guess: float) -> float:
+    """The simulated time a standing-wave run covers (a span for the views of a stage's runs)."""
+    _, dt, n_steps = wave_steps(ctx, model, k, c_guess)
+    return n_steps * dt
+
+
+def displacement_component(direction, polarization) -> tuple[np.ndarray, str]:
+    """(unit 3-vector a, name) of the displacement component that shows a wave travelling along
+    ``direction`` n with ``polarization`` p: the axis p lies along if it is within 2 degrees of one;
+    else, for a (quasi-)P wave (p within 45 degrees of n), the component along n; else (a
+    (quasi-)S wave) the component of p across n. Named "u_x", "u_y", "u_z" when a is an axis, else
+    "u_n" (along n) or "u_t" (across n, along the polarization's transverse part)."""
+    def unit3(v):
+        w = np.zeros(3)
+        w[:len(v)] = np.asarray(v, dtype=np.float64)
+        return w / np.linalg.norm(w)
+    p, n = unit3(polarization), unit3(direction)
+    i = int(np.argmax(np.abs(p)))
+    if abs(p[i]) > math.cos(math.radians(2.0)):
+        a, name = np.eye(3)[i], None
+    elif abs(p @ n) >= math.cos(math.radians(45.0)):
+        a, name = n, "u_n"
+    else:
+        a, name = unit3(p - (p @ n) * n), "u_t"
+    j = int(np.argmax(np.abs(a)))
+    if abs(a[j]) > 1 - 1e-12:
+        a, name = np.eye(3)[j], f"u_{'xyz'[j]}"
+    return a, f"{name} (m)"
+
+
 def standing_wave(ctx, name: str, model: Model, mass: np.ndarray, direction, polarization, k: float,
-                  origin, region: np.ndarray, c_guess: float, draw=None, fits: list | None = None) -> float:
+                  origin, region: np.ndarray, c_guess: float, draw=None, fits: list | None = None,
+                  view: RunView | None = None) -> float:
     """Start u = A cos(k (X - origin).n) p from rest, run RUN_PERIODS of a period (sized with
     ``c_guess``; the measurement does not use it) with velocity Verlet (or the integrator of
     ``--integrator``), and return the measured phase speed w/k from the amplitude over ``region``
     (engine.waves).
+
+    When recording, ``draw(rec, x, gain, axis, quantity, scale)`` (a drawer of this module) draws
+    the state with displacements magnified by ``gain`` (the amplitude drawn as DRAWN_AMPLITUDE of a
+    wavelength), coloured by the displacement component the wave carries (see
+    :func:`displacement_component`) on the fixed scale A, in the view ``view`` (without an energy
+    plot; the component's direction is added to its label when it is neither an axis nor the
+    direction of travel). A run without ``draw`` only measures.
 
     Under backward Euler (stable at any step) the step is BE_PHASE_STEP/(k c_guess), whatever the
     CFL limit, so that the scheme's phase lag 1 - arctan(w dt)/(w dt) is the same 8e-4 in every
@@ -69,20 +117,25 @@ def standing_wave(ctx, name: str, model: Model, mass: np.ndarray, direction, pol
     probe = ModeProbe(X, mass, direction, polarization, k, origin, region)
     A = cfg.strain / k  # peak strain k A
     state = model.make_state(X + probe.displacement(A))
-    implicit = ctx.integrator_name("velocity-verlet") == "backward-euler"
-    dt = BE_PHASE_STEP / (k * c_guess) if implicit else cfg.cfl * stable_dt_estimate(model)
-    n_steps = max(8, int(math.ceil(RUN_PERIODS * 2 * math.pi / (k * c_guess) / dt)))
+    implicit, dt, n_steps = wave_steps(ctx, model, k, c_guess)
     times, amps = [], []
 
     def observe(step, st):
         times.append(step * dt)
         amps.append(probe.amplitude(st.x.to_numpy()))
 
-    log = _frame_logger(draw, dt, n_steps, A, cfg.frames) if draw is not None and ctx.rec.enabled else None
+    log = None
+    if draw is not None and ctx.rec.enabled:
+        axis, quantity = displacement_component(direction, polarization)
+        gain = DRAWN_AMPLITUDE * (2 * math.pi / k) / A
+        view = dataclasses.replace(view or RunView(), energy=None)
+        if quantity.startswith("u_t"):
+            view.label = f"{view.label or name}, t = ({', '.join(f'{a:.2f}' for a in axis[:len(polarization)])})"
+        log = lambda rec, st: draw(rec, st.x.to_numpy().astype(np.float64), gain, axis, quantity, A)
     W0 = model.potential_energy(state.x)
     with _pcg_for_3d_boxes(ctx, name, model, implicit):
         simulate(ctx, name, model, state, dt, n_steps, integrator="velocity-verlet", every=1,
-                 energy_bound=10 * W0, observe=observe, log=log, energy_every=4)
+                 energy_bound=10 * W0, observe=observe, log=log, energy_every=4, view=view if log else None)
     if not implicit:
         return phase_frequency(np.asarray(times), np.asarray(amps)) / k
     w, gamma = damped_frequency(np.asarray(times), np.asarray(amps))
@@ -91,17 +144,6 @@ def standing_wave(ctx, name: str, model: Model, mass: np.ndarray, direction, pol
     ctx.progress(f"{name}: backward Euler, dt = {dt:.4g} s (w dt = {w * dt:.4f}), fitted damping "
                  f"{gamma:.4g} 1/s, the scheme's {be_damping_rate(w, dt):.4g} 1/s")
     return w / k
-
-
-def _frame_logger(draw, dt: float, n_steps: int, amplitude: float, frames: int):
-    """log(rec, state) drawing about ``frames`` frames of a run (and its last step)."""
-    every = max(1, n_steps // frames)
-
-    def log(rec, st):
-        step = int(round(st.t / dt))
-        if step % every == 0 or step == n_steps:
-            draw(rec, st.x.to_numpy().astype(np.float64), amplitude)
-    return log
 
 
 @contextlib.contextmanager
@@ -144,42 +186,28 @@ def be_experiments(ctx, where: str, fits: list, jittered: list = ()) -> list:
     ]
 
 
-def _colors(strain, scale):
-    from engine.recorder import strain_colors  # rerun only when recording
-    return strain_colors(strain, scale)
+def sheet_drawer(mesh3: M.Mesh):
+    """draw(rec, x, gain, axis, quantity, scale): the sheet's triangles at X + gain (x - X), each
+    vertex coloured by its displacement along ``axis`` on the run's fixed ``scale``."""
+    X, T = mesh3.vertices, mesh3.triangles
 
-
-def sheet_drawer(mesh3: M.Mesh, spacing: float, k: float):
-    """Draw a sheet: triangles with per-vertex strain colours and strain-coloured springs;
-    displacements magnified so the wave's amplitude shows as a quarter spacing."""
-    X, E, L, T = mesh3.vertices, mesh3.edges, mesh3.rest_lengths, mesh3.triangles
-
-    def draw(rec, x, amplitude):
-        s = edge_strain(x, E, L)
-        scale = k * amplitude
-        xd = X + (0.25 * spacing / amplitude) * (x - X)
-        rec.mesh(xd, T, vertex_colors=_colors(vertex_strain(len(X), E, s), scale))
-        rec.springs(xd, E, s, scale=scale)
+    def draw(rec, x, gain, axis, quantity, scale):
+        u = x - X
+        rec.mesh(X + gain * u, T, vertex_colors=rec.colors(u @ axis, "signed", quantity, scale))
     return draw
 
 
-def solid_drawer(mesh: M.Mesh, spacing: float, k: float, springs: bool = True):
-    """Draw a tet box by its surface (vertex strain colours) and the springs on it."""
+def solid_drawer(mesh: M.Mesh):
+    """draw(rec, x, gain, axis, quantity, scale): a tet box by its surface triangles, drawn and
+    coloured as :func:`sheet_drawer` draws a sheet."""
     faces = M.boundary_faces(mesh)
     verts, inv = np.unique(faces, return_inverse=True)
     faces_local = inv.reshape(-1, 3)
-    pairs = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
-    surf = np.unique(pairs, axis=0)
-    X, E, L = mesh.vertices, mesh.edges, mesh.rest_lengths
-    Ls = np.linalg.norm(X[surf[:, 1]] - X[surf[:, 0]], axis=1)
+    Xs = mesh.vertices[verts]
 
-    def draw(rec, x, amplitude):
-        scale = k * amplitude
-        xd = X + (0.25 * spacing / amplitude) * (x - X)
-        vs = vertex_strain(len(X), E, edge_strain(x, E, L))
-        rec.mesh(xd[verts], faces_local, vertex_colors=_colors(vs[verts], scale))
-        if springs:
-            rec.springs(xd, surf, edge_strain(x, surf, Ls), scale=scale)
+    def draw(rec, x, gain, axis, quantity, scale):
+        u = x[verts] - Xs
+        rec.mesh(Xs + gain * u, faces_local, vertex_colors=rec.colors(u @ axis, "signed", quantity, scale))
     return draw
 
 
@@ -199,8 +227,9 @@ def stage_refinement(ctx):
     speeds = {"area": [], "k": []}
     fits = []
     k_spring = None
+    shown = {}  # the span of the drawn runs' views (set by the first)
     for level, nc in enumerate(cfg.box_cells * 2 ** i for i in range(3)):
-        k_spring = _refinement_level(ctx, level, nc, k_spring, speeds, fits)
+        k_spring = _refinement_level(ctx, level, nc, k_spring, speeds, fits, shown)
     a, kk = speeds["area"], speeds["k"]
     return [
         Experiment("one k for all springs: speed ratio c(h/2)/c(h) = 2 (c ~ 1/h)", 2.0, kk[1] / kk[0], 2e-2,
@@ -216,11 +245,15 @@ def stage_refinement(ctx):
     ] + be_experiments(ctx, "refinement", fits)
 
 
-def _refinement_level(ctx, level: int, nc: int, k_spring, speeds: dict, fits: list):
+LAWS = {"area": "volume-scaled springs", "k": "one k for every spring"}
+
+
+def _refinement_level(ctx, level: int, nc: int, k_spring, speeds: dict, fits: list, shown: dict):
     """The standing compression wave on the 1 m box of ``nc`` cells, once with volume-scaled
     springs and once with one constant k for every spring (tuned on the coarsest box so that
     both laws agree there: returned, to be passed to the finer levels); the speeds are appended
-    to ``speeds``."""
+    to ``speeds``. The two coarser levels are drawn, all four views over the time of the first
+    run (``shown["span"]``): the one-k wave on the finer box, twice as fast, gets there in half."""
     cfg = ctx.cfg
     k = math.pi / BOX_LENGTH
     h = BOX_LENGTH / nc
@@ -241,13 +274,18 @@ def _refinement_level(ctx, level: int, nc: int, k_spring, speeds: dict, fits: li
     mass = M.lumped_masses(mesh, cfg.rho)
     yc = 0.5 * (ny - 1) * h
     band = (np.abs(X[:, 1] - yc) <= 1.01 * h) & (np.abs(X[:, 2] - yc) <= 1.01 * h)
-    draw = solid_drawer(mesh, h, k, springs=level == 0) if level < 2 else None
+    draw = solid_drawer(mesh) if level < 2 and ctx.rec.enabled else None
     ctx.progress(f"h = {h:.4g} m: {mesh.n_vertices} vertices, {len(mesh.edges)} springs")
     for law, (C, coef) in laws.items():
         speeds_th, pol = christoffel(C, [1, 0, 0], cfg.rho)
         model = Model.from_springs(X, mesh.edges, c=coef(mesh), mass=mass)
+        view = None
+        if draw is not None:
+            if shown.get("span") is None:
+                shown["span"] = wave_time(ctx, model, k, speeds_th[-1])
+            view = RunView(label=f"{LAWS[law]}, h = 1/{nc} m", camera="outside", span=shown["span"])
         c = standing_wave(ctx, f"{law}_h{nc}", model, mass, [1, 0, 0], pol[:, -1], k, (0.0, 0.0, 0.0),
-                          band, speeds_th[-1], draw, fits)
+                          band, speeds_th[-1], draw, fits, view=view)
         speeds[law].append(c)
         ctx.progress(f"  {law:4s}: measured {c:.5f} m/s, Cauchy-Born {speeds_th[-1]:.5f} m/s")
     return k_spring
@@ -301,13 +339,16 @@ def _equilateral_speeds(ctx, cP: float, cS: float, fits: list) -> dict:
     V = m2.vertices
     ctr = 0.5 * (V.min(axis=0) + V.max(axis=0))
     region = np.linalg.norm(V - ctr, axis=1) <= r
-    draw = sheet_drawer(m3, 1.0, k)
+    draw = sheet_drawer(m3) if ctx.rec.enabled else None
+    span = wave_time(ctx, model, k, cS) if draw is not None else None  # the S waves' time: P's are sqrt(3) faster
     out = {}
     for label, d in (("x", [1.0, 0.0]), ("y", [0.0, 1.0])):
         n = _unit(d)
         for wave, p, guess in (("P", n, cP), ("S", np.array([-n[1], n[0]]), cS)):
+            where = "an edge direction" if label == "x" else "across the edges"
+            view = RunView(label=f"{wave} wave along {label} ({where})", camera="top", span=span)
             out[wave, label] = standing_wave(ctx, f"{wave}_along_{label}", model, mass, n, p, k, ctr, region,
-                                             guess, draw if label == "x" else None, fits)
+                                             guess, draw, fits, view=view)
             ctx.progress(f"{wave} along {label}: {out[wave, label]:.5f} m/s")
     return out
 
@@ -326,21 +367,27 @@ def stage_patterns(ctx):
     half = r + RUN_PERIODS * lam * math.sqrt(3) * 1.05 + 2.0  # the slowest wave is 1/sqrt(3) of the fastest
     n = square_domain_cells(half, 1.0) + 1
     exps, measured, fits = [], {}, []
+    shown = {}  # the span of the drawn runs' views (set by the first pattern)
     for pattern in ("one-way", "alternating", "crossed"):
-        exps += _pattern_speeds(ctx, pattern, n, k, r, measured, fits)
+        exps += _pattern_speeds(ctx, pattern, n, k, r, measured, fits, shown)
     v1, t1 = measured["one-way", "diagonal (1,1)"]
     v2, t2 = measured["one-way", "diagonal (1,-1)"]
     exps.append(Experiment("one-way grid is anisotropic: speed along / across its diagonals", t1 / t2, v1 / v2, 2e-2,
                            id="one-way-anisotropic"))
     jittered = []
-    exps += _jitter_experiments(ctx, n, k, lam, jittered)
+    exps += _jitter_experiments(ctx, n, k, lam, jittered, shown.get("span"))
     return exps + be_experiments(ctx, "patterns", fits, jittered)
 
 
-def _pattern_speeds(ctx, pattern: str, n: int, k: float, r: float, measured: dict, fits: list):
+SHOWN_PATTERN_RUNS = (("one-way", "diagonal (1,1)"), ("one-way", "diagonal (1,-1)"), ("alternating", "x"))
+
+
+def _pattern_speeds(ctx, pattern: str, n: int, k: float, r: float, measured: dict, fits: list, shown: dict):
     """The P wave along x, y and both diagonals of a right-triangle grid of ``pattern`` against
     the Cauchy-Born prediction, read in a disc of radius ``r`` (the measured and predicted speeds
-    also go to ``measured``)."""
+    also go to ``measured``). The runs of SHOWN_PATTERN_RUNS are drawn, over the time of the first
+    pattern's longest run (``shown["span"]``: the one-way grid across its diagonals, the stage's
+    slowest wave), so the one-way grid's fast and slow diagonal play side by side."""
     cfg = ctx.cfg
     c0 = math.sqrt(cfg.E / cfg.rho)
     m2 = M.right_triangle_grid(n, n, n - 1.0, n - 1.0, pattern)
@@ -349,12 +396,17 @@ def _pattern_speeds(ctx, pattern: str, n: int, k: float, r: float, measured: dic
     C = cauchy_born_tensor(m2.vertices, m2.edges, c, m2.total_measure)
     ctr = np.full(2, 0.5 * (n - 1))
     region = np.linalg.norm(m2.vertices - ctr, axis=1) <= r
+    if ctx.rec.enabled and shown.get("span") is None:
+        shown["span"] = max(wave_time(ctx, model, k, christoffel(C, d, cfg.rho)[0][-1]) for d, _ in DIRECTIONS.values())
     exps = []
     for label, (d, slug) in DIRECTIONS.items():
         speeds, pol = christoffel(C, d, cfg.rho)
-        draw = sheet_drawer(m3, 1.0, k) if label == "x" else None
+        draw = view = None
+        if ctx.rec.enabled and (pattern, label) in SHOWN_PATTERN_RUNS:
+            draw = sheet_drawer(m3)
+            view = RunView(label=f"{pattern} grid, P wave along {label}", camera="top", span=shown["span"])
         v = standing_wave(ctx, f"{pattern}_{label}", model, mass, _unit(d), pol[:, -1], k, ctr, region,
-                          speeds[-1], draw, fits)
+                          speeds[-1], draw, fits, view=view)
         measured[pattern, label] = (v, speeds[-1])
         ctx.progress(f"{pattern}, P along {label}: measured {v:.5f}, Cauchy-Born {speeds[-1]:.5f} m/s")
         exps.append(Experiment(f"{pattern} grid: P wave along {label} = Cauchy-Born ({speeds[-1] / c0:.4f} c0)",
@@ -362,10 +414,11 @@ def _pattern_speeds(ctx, pattern: str, n: int, k: float, r: float, measured: dic
     return exps
 
 
-def _jitter_experiments(ctx, n, k, lam, fits):
+def _jitter_experiments(ctx, n, k, lam, fits, span=None):
     """Jittered one-way grids: strong jitter (cfg.jitter, several seeds) against the relaxed
     network's prediction, mild jitter against the affine Cauchy-Born sum; the affine sum is an
-    upper bound, and the speeds scatter little between meshes."""
+    upper bound, and the speeds scatter little between meshes. The first (strong jitter, seed 0,
+    along x) is drawn, its view spanning ``span``."""
     cfg = ctx.cfg
     base = M.right_triangle_grid(n, n, n - 1.0, n - 1.0, "one-way")
     ctr = np.full(2, 0.5 * (n - 1))
@@ -385,9 +438,13 @@ def _jitter_experiments(ctx, n, k, lam, fits):
         for label, d in (("x", [1.0, 0.0]), ("y", [0.0, 1.0])):
             s_aff, _ = christoffel(C_affine, d, rho_eff)
             s_rel, pol = christoffel(C_relaxed, d, rho_eff)
-            first = amp == cfg.jitter and seed == 0 and label == "x"
+            draw = view = None
+            if ctx.rec.enabled and amp == cfg.jitter and seed == 0 and label == "x":
+                draw = sheet_drawer(m3)
+                view = RunView(label=f"one-way grid jittered by {amp:g} (seed {seed}), P wave along x", camera="top",
+                               span=span)
             v = standing_wave(ctx, f"jitter{amp:g}_seed{seed}_{label}", model, mass, d, pol[:, -1], k, ctr,
-                              region, s_rel[-1], sheet_drawer(m3, 1.0, k) if first else None, fits)
+                              region, s_rel[-1], draw, fits, view=view)
             ctx.progress(f"jitter {amp:g} seed {seed}, P along {label}: measured {v:.5f}, relaxed {s_rel[-1]:.5f}, "
                          f"affine Cauchy-Born {s_aff[-1]:.5f} m/s ({v / s_aff[-1] - 1:+.2%})")
             if amp == cfg.jitter:
@@ -458,11 +515,17 @@ def _tet_box_speeds(ctx, C_unit: np.ndarray, fits: list) -> dict:
         ctr = np.full(3, 0.5 * cells * h)
         region = np.linalg.norm(mesh.vertices - ctr, axis=1) <= r
         ctx.progress(f"cube h = {h:.4g} m: {mesh.n_vertices} vertices, {len(mesh.edges)} springs")
-        draw = solid_drawer(mesh, h, k) if refine == 1 else None
+        draw = span = None
+        if refine == 1 and ctx.rec.enabled:  # the coarse box's three runs are drawn, over the slowest one's time
+            draw = solid_drawer(mesh)
+            span = max(wave_time(ctx, model, k, christoffel(C_unit, d, cfg.rho)[0][-1]) for _, d in todo)
         for label, d in todo:
             speeds, pol = christoffel(C_unit, d, cfg.rho)
+            view = RunView(label=f"{'P' if label == '(1,1,1)' else 'quasi-P'} wave along {label}, "
+                                 f"h = 1/{cfg.box_cells * refine} m",
+                           camera="outside", span=span)
             v = standing_wave(ctx, f"P_{label}_h{refine}", model, mass, _unit(d), pol[:, -1], k, ctr, region,
-                              speeds[-1], draw if label == "(1,1,1)" else None, fits)
+                              speeds[-1], draw, fits, view=view)
             out[label, refine] = (v, speeds[-1])
             ctx.progress(f"  P along {label}: measured {v:.5f}, Cauchy-Born {speeds[-1]:.5f} m/s")
     return out
@@ -508,13 +571,13 @@ def _pull(ctx, name: str, m2: M.Mesh, end_width: float):
     start[:, 0] = x0 + (X[:, 0] - x0) * (1 + cfg.strain)
     res = solve_static(model, x0=start, tol=1e-8, max_iter=60)
     u = res.x - X
-    length, width = x1 - x0, X[:, 1].max() - X[:, 1].min()
+    width = X[:, 1].max() - X[:, 1].min()
     exx, eyy = _middle_strains(X, u, x0, x1)
     F = res.reactions[right, 0].sum()
     ctx.progress(f"{name}: {res.iterations} Newton steps, residual {res.residual:.2g}; eps_xx {exx:.6g} in the middle "
                  f"(nominal {cfg.strain:g}), eps_yy {eyy:.6g}, pin force {F:.6g} N")
     if ctx.rec.enabled:
-        _draw_strip(ctx.rec, name, m3, res.x, u, cfg.strain, length)
+        _draw_strip(ctx.rec, name, m3, res.x, u, cfg.strain)
     return -eyy / exx, F / (width * exx), F / (width * cfg.strain)
 
 
@@ -528,12 +591,20 @@ def _middle_strains(X, u, x0, x1):
     return exx, eyy
 
 
-def _draw_strip(rec, name, m3, x, u, strain, length):
-    """The stretched strip coloured by strain, its end displacement drawn as 2 spacings."""
+STRIPS = {"equilateral_strip": "equilateral strip", "alternating_strip": "alternating right-triangle strip"}
+
+
+def _draw_strip(rec, name, m3, x, u, strain):
+    """The stretched strip (one frame) and its springs, coloured by strain on the scale of the
+    nominal strain, the displacements magnified so that the end moves a quarter of the strip's
+    length (the narrowing in the middle, Poisson's ratio, then shows)."""
     X = m3.vertices
-    rec.run(name)
+    gain = 0.25 / strain
+    rec.run(name, RunView(label=f"{STRIPS[name]} stretched by {100 * strain:.2g}%, clamped ends, "
+                                f"displacement x{gain:.0f}", camera="top", energy=None))
     rec.set_time(0, 0.0)
     s = edge_strain(x, m3.edges, m3.rest_lengths)
-    xd = X + (2.0 / (strain * length)) * u
-    rec.mesh(xd, m3.triangles, vertex_colors=_colors(vertex_strain(len(X), m3.edges, s), 1.5 * strain))
-    rec.springs(xd, m3.edges, s, scale=1.5 * strain)
+    xd = X + gain * u
+    rec.mesh(xd, m3.triangles, vertex_colors=rec.colors(vertex_strain(len(X), m3.edges, s), "signed", "strain",
+                                                        strain))
+    rec.springs(xd, m3.edges, s, scale=strain)

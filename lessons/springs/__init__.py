@@ -30,7 +30,8 @@ class SpringsConfig:
                      gt=0, le=1e9)
     rho: float = param(1.0, "stages 4-5: linear density", "kg/m", ge=1e-6, le=1e6)
     hang_nodes: int = param(41, "stage 5: nodes of the hanging rod (1 m)", ge=3, le=5000)
-    record_every: int = param(1000, "stage 2: log the spring network every k-th step", ge=1)
+    record_every: int = param(1000, "stage 2: steps per kernel launch of the conservation runs (and between the "
+                              "frame's momentum checks)", ge=1)
 
 
 LESSON = Lesson(

@@ -27,6 +27,7 @@ from engine.integrators.kernels import EXPLICIT
 from engine.fields import vec3_ndarray
 from engine.model import Model
 from engine.scenes import Rod
+from engine.recorder import RunView
 from engine.statics import solve_static
 
 from .._framework import Experiment
@@ -50,20 +51,26 @@ def chain_masses(Ls: np.ndarray, rho: float) -> np.ndarray:
     return m
 
 
-def draw_springs(rec, model: Model, x: np.ndarray, scale: float | None = None) -> None:
-    """The spring network as line strips coloured by strain (blue compressed, red stretched)."""
+def draw_springs(rec, model: Model, x: np.ndarray, scale: float | None = None, prefix: str = "",
+                 radius: float = 0.006) -> None:
+    """The spring network as line strips coloured by strain on the run's fixed scale (blue
+    compressed, white at rest, red stretched) and its nodes (pinned ones dark red), under
+    ``prefix`` (a body's name when a run draws several side by side)."""
     sp = model.springs
-    rec.springs(x, sp.edges_np, edge_strain(x, sp.edges_np, sp.L_np), scale=scale)
-    rec.points("nodes", x, colors=np.where(model.pinned[:, None], [[230, 60, 60]], [[200, 200, 200]]),
-               radii=0.006)
+    segs = np.stack([x[sp.edges_np[:, 0]], x[sp.edges_np[:, 1]]], axis=1)
+    colors = rec.colors(edge_strain(x, sp.edges_np, sp.L_np), "signed", "strain", scale)
+    rec.line_strips(prefix + "springs", segs, colors=colors, radii=0.4 * radius)
+    rec.points(prefix + "nodes", x, colors=np.where(model.pinned[:, None], [[200, 40, 40]], [[170, 170, 170]]),
+               radii=radius)
 
 
 def simulate_fused(ctx, name: str, model: Model, state, dt: float, n_steps: int, method: str,
-                   every: int, energy_bound: float | None = None, observe=None, log=None, fixed: bool = False):
-    """A run of the many-steps kernel through the one lesson runner (``lessons._scene.simulate_method``).
-    Returns (kinetic, potential) per step."""
+                   every: int, energy_bound: float | None = None, observe=None, log=None, fixed: bool = False,
+                   view: RunView | None = None):
+    """A run of the many-steps kernel through the one lesson runner (``lessons._scene.simulate_method``),
+    shown as ``view``. Returns (kinetic, potential) per step."""
     _, K, W = simulate_method(ctx, name, model, state, dt, n_steps, method, every, energy_bound, observe=observe,
-                              log=log, fixed=fixed)
+                              log=log, fixed=fixed, view=view)
     return K, W
 
 
@@ -170,15 +177,28 @@ def _rigid_motion_errors(spring: _OneSpring, x, rng):
     return W0, abs(spring.W(xr) - W0) / W0, np.linalg.norm(spring.force(xr) - f0 @ R.T) / np.linalg.norm(f0)
 
 
+ONE_SPRING_POSES = ("at rest", "stretched by 30%", "compressed by 20%")
+
+
 def _draw_one_spring(rec, spring: _OneSpring, configs) -> None:
-    """Frame 0: at rest; 1: stretched; 2: compressed (force arrows in green)."""
-    rec.run("one_spring")
-    for frame, xs in enumerate([spring.X] + configs):
-        rec.set_time(frame, 0.0)
-        draw_springs(rec, spring.model, xs, scale=0.3)
+    """The spring at rest, stretched and compressed, side by side 0.5 m apart along x (each moved
+    so that its midpoint sits there; orientations as measured), coloured by strain, with the force
+    on each end as a thin green line from the node (the longest 0.3 L) and a label under each."""
+    rec.run("one_spring", RunView(label="one spring in a random orientation: at rest, stretched, compressed "
+                                        "(force on each end: green)", camera="front", energy=None))
+    rec.set_time(0, 0.0)
+    poses = [spring.X] + list(configs)
+    fmax = max(np.abs(spring.force(xs)).max() for xs in poses[1:])
+    under = []
+    for i, (xs, entity) in enumerate(zip(poses, ("rest", "stretched", "compressed"))):
+        shift = np.array([0.5 * i, 0.0, 0.0]) - xs.mean(axis=0)
+        x = xs + shift
+        draw_springs(rec, spring.model, x, scale=0.3, prefix=f"{entity}/", radius=0.012)
         fs = spring.force(xs)
-        arrows = np.stack([xs, xs + 0.3 * spring.L * fs / max(np.abs(fs).max(), 1e-300)], axis=1)
-        rec.line_strips("force", arrows, colors=[[40, 180, 40]])
+        arrows = np.stack([x, x + 0.3 * spring.L * fs / fmax], axis=1)
+        rec.line_strips(f"{entity}/force", arrows, colors=[[40, 200, 40]], radii=0.0025)
+        under.append([0.5 * i, 0.0, -0.25])
+    rec.labels("labels", under, ONE_SPRING_POSES)
 
 
 # ------------------------------------------------------------------------- stage 2
@@ -260,7 +280,45 @@ def _momentum_watch(model, P0, J0):
     return observe, dP, dJ, mv, mxv
 
 
-STRAIN_SCALE = 0.05  # the strain drawn at full colour in stage 2
+METHOD_NAMES = {"symplectic-euler": "symplectic Euler", "velocity-verlet": "velocity Verlet",
+                "forward-euler": "forward Euler"}
+FORWARD_EULER_SHOWN = 1000  # steps of the forward-Euler chain on its view's timeline (it is stopped within them)
+
+
+def chain_strain_scale(model: Model) -> float:
+    """The chain's strain drawn at full colour: 3 M g / k, the top link's strain when a pendulum
+    of the chain's whole mass M, dropped from the horizontal, passes below its pin (tension 3 M g)."""
+    sp = model.springs
+    return 3.0 * float(model.mass.sum()) * G / float(np.max(sp.c_np / sp.L_np))  # k = c / L
+
+
+def _chain_view(model: Model, method: str, n_steps: int) -> tuple:
+    """(log, view) of a swinging-chain run: the chain seen from the front (it swings down in the
+    x-z plane, pushed sideways along y), strain on the scale of :func:`chain_strain_scale`, its
+    kinetic, potential and total energy plotted (its total is near 0 J, so a relative drift would
+    say nothing)."""
+    scale = chain_strain_scale(model)
+    log = lambda rec, s: draw_springs(rec, model, s.x.to_numpy(), scale, radius=0.015)
+    label = (f"chain, {METHOD_NAMES[method]}, {n_steps:,} steps" if method != "forward-euler" else
+             f"chain, forward Euler, first {FORWARD_EULER_SHOWN} steps")
+    return log, RunView(label=label, camera="front", energy="split")
+
+
+def _frame_view(model: Model, x0: np.ndarray, method: str) -> tuple:
+    """(log, view) of a spinning-frame run. The frame drifts at 0.1 m/s (5 m, 25 times its size,
+    over the default 10^5 steps): it is drawn as seen from its centre of mass, which stays where it
+    starts; strain on the scale of the largest initial strain of the jiggle; the relative drift of
+    its total energy plotted."""
+    sp = model.springs
+    scale = float(np.max(np.abs(edge_strain(x0, sp.edges_np, sp.L_np))))
+    m = model.mass / model.mass.sum()
+    c0 = m @ x0
+
+    def log(rec, s):
+        x = s.x.to_numpy().astype(np.float64)
+        draw_springs(rec, model, x - m @ x + c0, scale, radius=0.006)
+    return log, RunView(label=f"tet frame about its centre of mass, {METHOD_NAMES[method]}", camera="outside",
+                        energy="drift")
 
 
 def _conservation_run(ctx, net, model, x0, v0, dt, method, scale):
@@ -273,9 +331,9 @@ def _conservation_run(ctx, net, model, x0, v0, dt, method, scale):
     E0 = diagnostics.total_energy(model, st)
     P0, J0 = diagnostics.linear_momentum(model, st), diagnostics.angular_momentum(model, st)
     observe, dP, dJ, mv, mxv = _momentum_watch(model, P0, J0)
-    log = lambda rec, s: draw_springs(rec, model, s.x.to_numpy(), STRAIN_SCALE)
+    log, view = _chain_view(model, method, N) if net == "chain" else _frame_view(model, x0, method)
     K, W = simulate_fused(ctx, f"{net}_{method}", model, st, dt, N, method, cfg.record_every,
-                          observe=observe if net == "frame" else None, log=log, fixed=True)
+                          observe=observe if net == "frame" else None, log=log, fixed=True, view=view)
     E = K + W
     tenth = N // 10
     if scale is None:
@@ -312,10 +370,11 @@ def _forward_euler_chain(ctx, model, x0, v0, dt, scale):
     N = ctx.cfg.steps
     st = model.make_state(x0, v0)
     E0 = diagnostics.total_energy(model, st)
-    try:
-        simulate_fused(ctx, "chain_forward-euler", model, st, dt, N, "forward-euler", ctx.cfg.record_every,
-                       energy_bound=E0 + scale, fixed=True,
-                       log=lambda rec, s: draw_springs(rec, model, s.x.to_numpy(), STRAIN_SCALE))
+    log, view = _chain_view(model, "forward-euler", N)
+    view.span = FORWARD_EULER_SHOWN * dt  # its timeline: the first steps, where it is stopped
+    try:  # chunks of 5 steps: the recorder can draw the few hundred steps before the stop every 5 steps
+        simulate_fused(ctx, "chain_forward-euler", model, st, dt, N, "forward-euler", 5,
+                       energy_bound=E0 + scale, fixed=True, log=log, view=view)
         step = math.inf
     except BlowUpError as exc:
         step = exc.step
@@ -465,7 +524,7 @@ def _force_density_order(ctx, kind, theory, tol):
         e = (dens - _force_density_exact(p))[1:-1]  # interior nodes (the ends carry boundary terms)
         err_rms.append(math.sqrt(np.sum(ell[1:-1] * e * e)))
         err_max.append(np.max(np.abs(e)))
-        if ctx.rec.enabled and n == sizes[-1]:
+        if ctx.rec.enabled and n == sizes[0]:
             _draw_force_density(ctx.rec, kind, p, dens)
     h = 1.0 / (sizes - 1)
     o_rms = convergence_order(h, np.array(err_rms))
@@ -479,14 +538,19 @@ def _force_density_order(ctx, kind, theory, tol):
 
 
 def _draw_force_density(rec, kind, p, dens):
+    """The coarsest grid's force density at its interior nodes (orange dots: their spacing is the
+    grid's) on the exact d/dp(E(x'-1)) (a blue line), drawn over p in [0, 1] at height 0.5 for the
+    exact curve's largest |value|."""
     n = p.size
-    rec.run(f"force_density_{kind}")
+    rec.run(f"force_density_{kind}", RunView(label=f"force density, {kind} grid of {n} nodes: discrete (orange) · "
+                                                    "exact (blue)", camera="top", energy=None))
     rec.set_time(0, 0.0)
-    scale = 0.5 / np.max(np.abs(_force_density_exact(p)))
-    rec.line_strips("discrete", [np.stack([p, scale * dens, np.zeros(n)], axis=1)[1:-1]],
-                    colors=[[230, 160, 30]])
-    rec.line_strips("exact", [np.stack([p, scale * _force_density_exact(p), np.zeros(n)], axis=1)],
-                    colors=[[60, 120, 230]])
+    fine = np.linspace(0.0, 1.0, 1001)
+    scale = 0.5 / np.max(np.abs(_force_density_exact(fine)))
+    rec.line_strips("exact", [np.stack([fine, scale * _force_density_exact(fine), np.zeros(fine.size)], axis=1)],
+                    colors=[[70, 130, 240]], radii=0.002)
+    rec.points("discrete", np.stack([p, scale * dens, np.zeros(n)], axis=1)[1:-1], colors=[[240, 160, 30]],
+               radii=0.008)
 
 
 # ------------------------------------------------------------------------- stage 4
@@ -530,7 +594,9 @@ def stage_sound(ctx):
         Ls = _chain_lengths(kind, h)
         k = np.full(Ls.size, rho * c * c)  # k_j = rho c^2, i.e. kappa_j = rho c^2 / L_j
         model, p = _chain_model(Ls, k, rho)
-        v, v_pred = _pulse_speed(ctx, f"matched_{kind}", model, p, c, sigma, k, rho)
+        view = RunView(label=f"k_j = rho c^2 on {LENGTHS[kind]} ({Ls.size} segments)", camera="top", energy=None,
+                       span=_pulse_time(c))
+        v, v_pred = _pulse_speed(ctx, f"matched_{kind}", model, p, c, sigma, k, rho, view=view)
         speeds.append(v)
         predicted_speeds.append(v_pred)
         exps.append(expect(ctx, method, f"k_j = rho c^2 ({kind} lengths, {Ls.size} segments): pulse speed = c",
@@ -545,7 +611,10 @@ def stage_sound(ctx):
         Ls = _chain_lengths(kind, h)
         model, p = _chain_model(Ls, kappa * Ls, rho)  # notes' k = kappa L
         predicted = math.sqrt(kappa * Ls.mean() / rho)  # sqrt(k_eff L_mean / m_mean), k_eff = kappa L_mean
-        v, v_pred = _pulse_speed(ctx, f"constant_kappa_{kind}", model, p, predicted, sigma, kappa * Ls, rho)
+        view = RunView(label=f"one Hooke constant kappa on {LENGTHS[kind]} ({Ls.size} segments)", camera="top",
+                       energy=None, span=_pulse_time(c))
+        v, v_pred = _pulse_speed(ctx, f"constant_kappa_{kind}", model, p, predicted, sigma, kappa * Ls, rho,
+                                 view=view)
         const.append(v)
         exps.append(expect(ctx, method, f"one Hooke constant kappa ({kind} lengths): speed = sqrt(kappa L_mean / "
                            "rho)", predicted, v, v_pred, 1e-2, unit="m/s", id=f"constant-kappa-{kind}-speed"))
@@ -554,7 +623,19 @@ def stage_sound(ctx):
     return exps
 
 
-def _pulse_speed(ctx, name, model, p, c_scale, sigma, k, rho, p0=0.25):
+LENGTHS = {"uniform": "uniform lengths h", "alternating": "alternating lengths h, 2h",
+           "graded": "graded lengths h (1 + p)"}
+PULSE_TRAVEL = 0.45  # m: the pulse runs' length, in distance travelled at the speed they are sized with
+
+
+def _pulse_time(c_scale: float) -> float:
+    """The planned duration of a pulse run sized with speed ``c_scale`` (the last step at or before it).
+    Given as every run's span (the one of the slowest speed, c): the runs play in step and a faster
+    chain's pulse gets there sooner."""
+    return PULSE_TRAVEL / c_scale
+
+
+def _pulse_speed(ctx, name, model, p, c_scale, sigma, k, rho, p0=0.25, view=None):
     """Release a Gaussian bump at p0 from rest; fit the speed of the right-moving half's peak
     once it has separated from the left half. ``c_scale`` only sets the run time.
 
@@ -573,26 +654,23 @@ def _pulse_speed(ctx, name, model, p, c_scale, sigma, k, rho, p0=0.25):
     st = model.make_state(x0)
     bound = 10 * diagnostics.total_energy(model, st)  # forward Euler is stopped (and reported) there
     dt = 0.5 * stable_dt_estimate(model)
-    n_steps = int(0.45 / c_scale / dt)
+    n_steps = int(_pulse_time(c_scale) / dt)
     every = max(n_steps // 100, 1)
     region = [(p0, 1.0, 1)]  # the right-moving half
     (track,), observe = track_peaks(p, region)
-    calls = [0]
+    strain_scale = A / sigma * math.exp(-0.5)  # the released bump's largest strain
 
-    def log(rec, s):  # every 5th observation: 20 frames per run keep the recording small
-        calls[0] += 1
-        if (calls[0] - 1) % 5:
-            return
+    def log(rec, s):  # the chain along x, its displacement drawn along y (0.1 m for the bump's amplitude)
         x = s.x.to_numpy()[:, 0]
-        rec.rod(x, p, rod_node_strain(x, p), gain=0.1 / A)
+        rec.rod(x, p, rod_node_strain(x, p), gain=0.1 / A, scale=strain_scale)
 
     on_state = lambda step, s: observe(step, step * dt, s.x.to_numpy()[:, 0] - p)
     if method in EXPLICIT:
         simulate_fused(ctx, name, model, st, dt, n_steps, method, every, energy_bound=bound, observe=on_state,
-                       log=log)
+                       log=log, view=view)
     else:  # backward Euler (with --solver/--tol/--newton-iterations) via the engine's integrator
         scene_simulate(ctx, name, model, st, dt, n_steps, "symplectic-euler", every=every, energy_bound=bound,
-                       observe=on_state, log=log)
+                       observe=on_state, log=log, view=view)
 
     def fit(track):  # the peak's speed once the halves have separated
         return fit_slope(*np.array([(t, x) for t, x, _ in track if t * c_scale > 6 * sigma]).T)
@@ -617,6 +695,18 @@ def _hanging_rod(cfg, kind):
     return model, p
 
 
+def _draw_hanging(rec, kind, model, x, top_strain):
+    """The rod unloaded and hanging in equilibrium side by side (0.3 m apart along x), seen from the
+    front, coloured by strain on the scale of the exact top strain rho g L / E."""
+    rec.run(f"hanging_{kind}", RunView(label=f"{kind} grid, {model.n} nodes: unloaded | hanging", camera="front",
+                                       energy=None))
+    rec.set_time(0, 0.0)
+    shift = np.array([0.3, 0.0, 0.0])
+    draw_springs(rec, model, model.X, top_strain, prefix="unloaded/")
+    draw_springs(rec, model, x + shift, top_strain, prefix="hanging/")
+    rec.labels("labels", [[0.0, 0.0, 0.08], [0.3, 0.0, 0.08]], ["unloaded", "hanging"])
+
+
 def stage_hanging(ctx):
     exps = []
     for kind in ("uniform", "graded"):
@@ -639,12 +729,7 @@ def _hanging(ctx, kind, tol=1e-10):
     err = float(np.max(np.abs(u - u_exact)) / np.max(np.abs(u_exact)))
     weight = cfg.rho * G * 1.0
     if ctx.rec.enabled:
-        rec = ctx.rec
-        rec.run(f"hanging_{kind}")
-        rec.set_time(0, 0.0)
-        draw_springs(rec, model, model.X, cfg.rho * G / cfg.E)
-        rec.set_time(1, 0.0)
-        draw_springs(rec, model, x, cfg.rho * G / cfg.E)
+        _draw_hanging(ctx.rec, kind, model, x, cfg.rho * G / cfg.E)
     return [
         Experiment(f"{kind} grid: static solver converged (net-force residual <= tol)", tol, res.residual, 0, "<=",
                    id=f"hanging-{kind}-converged"),
