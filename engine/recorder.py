@@ -60,6 +60,7 @@ FRAMES_PER_RUN = 200        # geometry frames a run draws at most (tens per peri
 MIN_FRAMES_PER_RUN = 20     # ... and at least, when its span allows
 RUN_GEOMETRY_BYTES = 900_000  # a run's geometry budget (bytes of arrays logged), which sets its frames
 ENERGY_SAMPLES = 2000       # energy samples per series and run at most (min and max per bin)
+RAW_ENERGY_SAMPLES = 4 * ENERGY_SAMPLES  # samples held before the bin width is fixed
 PLAYBACK_SECONDS = 20.0     # a run plays in this many seconds at the viewer's 1x speed
 LIVE_PORT = 9876            # the port of the viewer a live recorder spawns (Rerun's default)
 CAMERAS = ("top", "front", "outside")
@@ -202,29 +203,33 @@ class StagePlan:
 
 
 def _camera(run: RunPlan, aspect: float) -> rrb.EyeControls3D:
-    """An eye that frames the run's bounding box in a view of width/height ``aspect``."""
+    """An eye that frames the run's bounding box in a view of width/height ``aspect``: looking at
+    the box's centre from the camera's direction, as close as lets every corner of the box inside
+    the field of view (FOV_Y tall, aspect x as wide), with a 6% margin."""
     lo, hi = run.lo, run.hi
     centre = 0.5 * (lo + hi)
-    half = np.maximum(0.5 * (hi - lo), 1e-6)
     if run.camera == "top":
-        direction, up, across, upward = np.array([0, 0, 1.0]), [0, 1.0, 0], half[0], half[1]
-        depth = half[2]
+        direction, up = np.array([0, 0, 1.0]), np.array([0, 1.0, 0])
     elif run.camera == "front":
-        direction, up, across, upward = np.array([0, -1.0, 0]), [0, 0, 1.0], half[0], half[2]
-        depth = half[1]
+        direction, up = np.array([0, -1.0, 0]), np.array([0, 0, 1.0])
     else:  # outside: oblique, from the front-right and above
         direction = np.array([0.75, -1.1, 0.7])
         direction /= np.linalg.norm(direction)
-        up = [0, 0, 1.0]
-        radius = float(np.linalg.norm(half))
-        across = upward = radius
-        depth = radius
+        up = np.array([0, 0, 1.0])
+    up_v = up - (up @ direction) * direction
+    up_v /= np.linalg.norm(up_v)
+    right = np.cross(-direction, up_v)
     run.aspect = aspect
     tan = math.tan(FOV_Y / 2)
-    distance = 1.12 * max(upward / tan, across / (tan * max(aspect, 1e-3))) + depth
+    corners = np.array(np.meshgrid(*zip(lo, hi))).reshape(3, -1).T - centre
+    # a corner o is seen at depth d - o.direction; it fits when |o.up| <= tan * depth and
+    # |o.right| <= aspect * tan * depth
+    need = np.maximum(np.abs(corners @ up_v) / tan, np.abs(corners @ right) / (tan * max(aspect, 1e-3)))
+    distance = float(np.max(1.06 * need + corners @ direction))
+    distance = max(distance, 1e-3 + float(np.max(corners @ direction)), 1e-6)
     position = centre + distance * direction
     return rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital, position=position.tolist(),
-                             look_target=centre.tolist(), eye_up=up)
+                             look_target=centre.tolist(), eye_up=up.tolist())
 
 
 # Where the grid of scene views sits in a 1600 x 1000 window with the panels collapsed: about
@@ -240,7 +245,7 @@ def _grid_shape(runs: list) -> tuple[int, bool]:
     strip = all(r.camera == "top" and e[0] > 3.0 * e[1] for r, e in zip(runs, extents))
     if strip:
         return 1, True
-    return (1 if n == 1 else 2 if n <= 4 else 3), False
+    return (1 if n == 1 else 2 if n <= 6 else 3), False
 
 
 def stage_view(stage: StagePlan, lesson_title: str = "") -> rrb.Container:
@@ -267,7 +272,7 @@ def stage_view(stage: StagePlan, lesson_title: str = "") -> rrb.Container:
         key = "; ".join(run.keys.values())
         scene = rrb.Spatial3DView(origin=run.entity, name=run.label + (f" · {key}" if key else ""),
                                   eye_controls=_camera(run, scene_w / max(scene_h, 1.0)),
-                                  line_grid=rrb.LineGrid3D(visible=run.camera != "top"))
+                                  line_grid=rrb.LineGrid3D(visible=run.camera == "outside"))
         if not has_plot:
             cells.append(scene)
             continue
@@ -419,6 +424,8 @@ class Recorder(NullRecorder):
         self._frame_bytes = 0         # bytes logged in the current frame
         self._pending: list = []      # energy samples not yet binned: (step, K, W)
         self._outbox: dict = {}       # entity -> kept samples not yet sent
+        self._pending_count = 0
+        self._energy_width = None     # steps per energy bin, fixed once the run has run long
         self._energy_dt = 0.0
         self._energy_first_total = None
 
@@ -466,6 +473,8 @@ class Recorder(NullRecorder):
             self._close_frame()
         self._run = None
         self._pending = []
+        self._pending_count = 0
+        self._energy_width = None
         self._energy_first_total = None
 
     def _tick(self, sim_time: float, step: int) -> int:
@@ -570,6 +579,7 @@ class Recorder(NullRecorder):
     def labels(self, entity: str, positions, texts, colors=None) -> None:
         """Text labels at points (e.g. the name of each of several bodies drawn side by side)."""
         pts = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
+        self._drew(pts)
         self._rec.log(self._path(entity), rr.Points3D(pts, labels=list(texts), radii=0.0,
                                                       colors=colors if colors is not None else [[230, 230, 230]]),
                       static=True)
@@ -603,12 +613,12 @@ class Recorder(NullRecorder):
         self._rec.log(self._path(entity), rr.LineStrips3D(strips, colors=colors, radii=radii))
 
     def springs(self, x: np.ndarray, edges: np.ndarray, strain: np.ndarray | None = None,
-                entity: str = "springs", scale: float | None = None) -> None:
+                entity: str = "springs", scale: float | None = None, radii=None) -> None:
         """Springs as two-point line strips, coloured by strain on the run's fixed scale."""
         segs = np.stack([x[edges[:, 0]], x[edges[:, 1]]], axis=1)
         colors = self.colors(strain, "signed", "strain", scale) if strain is not None else None
         self._drew(segs.reshape(-1, 3), colors)
-        self._rec.log(self._path(entity), rr.LineStrips3D(segs, colors=colors))
+        self._rec.log(self._path(entity), rr.LineStrips3D(segs, colors=colors, radii=radii))
 
     def mesh(self, x: np.ndarray, triangles: np.ndarray, vertex_colors=None, entity: str = "mesh") -> None:
         """Triangle mesh; the index buffer is logged once as static, positions per frame."""
@@ -657,14 +667,24 @@ class Recorder(NullRecorder):
             self._energy_dt = float(dt)
         steps = first_step + 1 + np.arange(kinetic.size)
         self._pending.append((steps, kinetic, potential))
+        self._pending_count += kinetic.size
         if self._run is not None:
             self._run.has_energy = True
+        # the first RAW_ENERGY_SAMPLES samples are kept as they are, so a run that stops early
+        # (a blow-up) is binned by the steps it ran, not by the steps it planned
+        if self._energy_width is None and self._pending_count <= RAW_ENERGY_SAMPLES:
+            return
         self._flush_energies(final=False)
 
-    def _bin(self) -> int:
-        run = self._run
-        n = run.n_steps if run is not None and run.n_steps else 0
-        return max(1, math.ceil(2 * n / ENERGY_SAMPLES)) if n else 1
+    def _bin(self, last_step: int) -> int:
+        """Steps per bin: from the run's planned steps once it has run long, else from the steps
+        it ran (``last_step``)."""
+        if self._energy_width is None:
+            run = self._run
+            planned = run.n_steps if run is not None and run.n_steps else 0
+            n = planned if self._pending_count > RAW_ENERGY_SAMPLES else last_step
+            self._energy_width = max(1, math.ceil(2 * max(n, last_step) / ENERGY_SAMPLES))
+        return self._energy_width
 
     def _flush_energies(self, final: bool) -> None:
         if not self._pending:
@@ -674,7 +694,7 @@ class Recorder(NullRecorder):
         steps = np.concatenate([p[0] for p in self._pending])
         K = np.concatenate([p[1] for p in self._pending])
         W = np.concatenate([p[2] for p in self._pending])
-        width = self._bin()
+        width = self._bin(int(steps[-1]))
         bins = (steps - 1) // width
         if not final:  # keep the last (maybe incomplete) bin for the next call
             done = bins < bins[-1]
@@ -682,9 +702,11 @@ class Recorder(NullRecorder):
                 self._pending = [(steps, K, W)]
                 return
             self._pending = [(steps[~done], K[~done], W[~done])]
+            self._pending_count = int((~done).sum())
             steps, K, W, bins = steps[done], K[done], W[done], bins[done]
         else:
             self._pending = []
+            self._pending_count = 0
         total = K + W
         if self._energy_first_total is None:
             self._energy_first_total = float(total[0])
