@@ -64,6 +64,7 @@ RAW_ENERGY_SAMPLES = 4 * ENERGY_SAMPLES  # samples held before the bin width is 
 PLAYBACK_SECONDS = 20.0     # a run plays in this many seconds at the viewer's 1x speed
 LIVE_PORT = 9876            # the port of the viewer a live recorder spawns (Rerun's default)
 CAMERAS = ("top", "front", "outside")
+KEYS_DOC = "colour_keys"    # the stage's document listing every run's colour scale
 # the energy series: name and colour (the plots name them in their titles, with no legend)
 SERIES = {"kinetic": ("kinetic", (90, 200, 90)), "potential": ("potential", (90, 150, 255)),
           "total": ("total", (235, 235, 235)), "relative": ("(E - E1) / |E1|", (255, 190, 60))}
@@ -252,7 +253,7 @@ def stage_view(stage: StagePlan, lesson_title: str = "") -> rrb.Container:
     """The tab of one stage (see the module docstring)."""
     origin = f"/stage{stage.index}"
     side = [rrb.TextDocumentView(origin=f"{origin}/narrative", name="narrative")]
-    side += [rrb.TextDocumentView(origin=f"{origin}/{d}", name=d) for d in stage.docs]
+    side += [rrb.TextDocumentView(origin=f"{origin}/{d}", name=d.replace("_", " ")) for d in stage.docs]
     if stage.has_events:
         side.append(rrb.TextLogView(origin=origin, name="events (blow-ups and warnings)"))
     side_panel = side[0] if len(side) == 1 else rrb.Vertical(*side, row_shares=[3] + [2] * (len(side) - 1))
@@ -264,11 +265,12 @@ def stage_view(stage: StagePlan, lesson_title: str = "") -> rrb.Container:
     columns, strip = _grid_shape(runs)
     rows = math.ceil(len(runs) / columns)
     cell_w, cell_h = _GRID_W / columns, _GRID_H / rows
+    side_by_side = strip or cell_w > 1.8 * cell_h  # a wide cell: the plot beside the scene, not under it
     cells = []
     for run in runs:
         has_plot = run.energy is not None and run.has_energy
-        scene_w = cell_w * (0.675 if (has_plot and strip) else 1.0)
-        scene_h = cell_h * (0.7 if (has_plot and not strip) else 1.0) - 24  # title bar
+        scene_w = cell_w * (0.675 if (has_plot and side_by_side) else 1.0)
+        scene_h = cell_h * (0.7 if (has_plot and not side_by_side) else 1.0) - 24  # title bar
         key = "; ".join(run.keys.values())
         scene = rrb.Spatial3DView(origin=run.entity, name=run.label + (f" · {key}" if key else ""),
                                   eye_controls=_camera(run, scene_w / max(scene_h, 1.0)),
@@ -282,7 +284,7 @@ def stage_view(stage: StagePlan, lesson_title: str = "") -> rrb.Container:
         else:
             plot = rrb.TimeSeriesView(origin=f"{run.entity}/energy", name=ENERGY_PLOT_NAME,
                                       plot_legend=rrb.PlotLegend(visible=False))
-        cells.append(rrb.Horizontal(scene, plot, column_shares=[2.7, 1.3]) if strip
+        cells.append(rrb.Horizontal(scene, plot, column_shares=[2.7, 1.3]) if side_by_side
                      else rrb.Vertical(scene, plot, row_shares=[2.3, 1]))
     grid = rrb.Grid(*cells, grid_columns=columns)
     left = rrb.Vertical(grid, results, row_shares=[2.4, 1])
@@ -471,6 +473,10 @@ class Recorder(NullRecorder):
         if self._run is not None:
             self._flush_energies(final=True)
             self._close_frame()
+            if self._run.keys and self.stages:  # the stage's colour keys, one line per run
+                keyed = [r for r in self.stages[-1].runs if r.keys and r.has_geometry]
+                self.markdown(KEYS_DOC, "Colours, each on a scale fixed for the whole run:\n\n" + "\n".join(
+                    f"- **{r.label}**: " + "; ".join(r.keys.values()) for r in keyed))
         self._run = None
         self._pending = []
         self._pending_count = 0
