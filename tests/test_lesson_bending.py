@@ -21,10 +21,10 @@ from tests.helpers import assert_all_passed, assert_unique_ids, cli, run_stage
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory):
     path = tmp_path_factory.mktemp("bending") / "bending.rrd"
-    rec = Recorder(path, "test_bending")
+    rec = Recorder(path, "test_bending", camera=LESSON.camera)
     stages = {i: run_stage(LESSON, i, rec=rec) for i in range(1, len(LESSON.stages) + 1)}
     rec.close()
-    return stages, path
+    return stages, path, rec
 
 
 @pytest.fixture(scope="module")
@@ -146,7 +146,7 @@ def test_stage5_curved_shell_linear_response_and_spring_back(stages):
 
 
 def test_recording_has_coloured_meshes_and_energies(recording):
-    _, path = recording
+    _, path, _ = recording
     info = summarize(path)
     for B in ("0.0003", "0.003", "0.03"):
         mesh = info[f"/stage4/cloth_B{B}/mesh"]
@@ -155,7 +155,36 @@ def test_recording_has_coloured_meshes_and_energies(recording):
         assert len(info[f"/stage4/cloth_B{B}/energy/potential"]["frames"]) == 100
     assert len(info["/stage5/release/energy/total"]["frames"]) == 200
     assert "/stage3/grid_0deg/mesh" in info and "/stage1/hinge/mesh" in info
-    assert path.stat().st_size < 50e6
+    assert path.stat().st_size < 20e6
+    # the hinge opens over the whole progress timeline; the sheets are single frames
+    hinge = info["/stage1/hinge/mesh"]["frames"]
+    assert len(hinge) == 121 and hinge[0] == 0 and hinge[-1] == 1000
+    for run in ("grid_0deg", "grid_0deg_discrete-shells", "grid_-45deg", "grid_jittered"):
+        assert len(info[f"/stage3/{run}/mesh"]["frames"]) == 1, run
+    # the cloth's fall, then its static equilibrium at the end of the timeline
+    for B in ("0.0003", "0.003", "0.03"):
+        assert info[f"/stage4/cloth_B{B}/mesh"]["frames"][-1] == 1000
+    assert len(info["/stage5/release/mesh"]["frames"]) >= 100
+
+
+def test_recording_views_are_labelled_framed_and_keyed(recording):
+    """Every run that drew has its own view: a label (not the run's name), the camera for its
+    geometry, and a colour key on a fixed scale; cloths are seen from the front."""
+    _, _, rec = recording
+    drawn = {(s.index, r.name): r for s in rec.stages for r in s.runs if r.has_geometry}
+    assert {name for (i, name) in drawn if i == 3} == {"grid_0deg", "grid_0deg_discrete-shells", "grid_-45deg",
+                                                        "grid_jittered"}
+    for (i, name), run in drawn.items():
+        assert run.label and run.label != name, (i, name)
+        assert len(run.keys) == 1, (i, name, run.keys)
+        assert run.camera == ("front" if i == 4 else "outside"), (i, name)
+    # the sheets on the continuum's scale (yellow: W = W_continuum), the cloths of the sweep on one scale
+    for (i, name), run in drawn.items():
+        if i in (2, 3):
+            assert run.scales == {"energy density / continuum": 1.0}, (i, name)
+    cloth_scales = {tuple(run.scales.values()) for (i, _), run in drawn.items() if i == 4}
+    assert len(cloth_scales) == 1
+    assert drawn[(5, "weight_x1")].scales == drawn[(5, "weight_x2")].scales
 
 
 @pytest.mark.parametrize("variant", ["bridson", "discrete-shells"])

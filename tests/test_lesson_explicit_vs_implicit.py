@@ -8,6 +8,7 @@ import math
 
 import pytest
 
+from engine.constants import G
 from engine.errors import ParameterError
 from engine.recorder import Recorder, summarize
 from lessons._framework import validate_config
@@ -20,13 +21,13 @@ from tests.helpers import assert_all_passed, assert_unique_ids, run_stage
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory):
     path = tmp_path_factory.mktemp("explicit_vs_implicit") / "evi.rrd"
-    rec = Recorder(path, "test_explicit_vs_implicit")
+    rec = Recorder(path, "test_explicit_vs_implicit", camera=LESSON.camera)
     stages, used = {}, {}
     for i in range(1, len(LESSON.stages) + 1):
         used[i] = []
         stages[i] = run_stage(LESSON, i, rec=rec, used=used[i])
     rec.close()
-    return stages, used, path
+    return stages, used, path, rec
 
 
 @pytest.fixture(scope="module")
@@ -102,7 +103,7 @@ def test_stage3_counts(stages):
 
 
 def test_every_run_is_fixed_and_noted(recording):
-    _, used, _ = recording
+    _, used, _, _ = recording
     for i, notes in used.items():
         assert notes and all(n.endswith("[fixed]") for n in notes), (i, notes)
     assert any("symplectic-euler" in n for n in used[1]) and any("backward-euler (pcg" in n for n in used[1])
@@ -128,7 +129,7 @@ def test_stepping_options_do_not_change_fixed_runs():
 
 
 def test_recording_has_meshes_energies_blow_up_marks_and_timings(recording):
-    _, _, path = recording
+    _, _, path, _ = recording
     info = summarize(path)
     below = info["/stage1/symplectic_0.9x/mesh"]
     assert below["static_chunks"] >= 1 and len(below["frames"]) >= 100  # the cloth, every 10th step
@@ -140,9 +141,29 @@ def test_recording_has_meshes_energies_blow_up_marks_and_timings(recording):
         assert events["frames"][0] == info[f"/stage1/{run}/mesh"]["frames"][-1]
     for run in ("backward_euler_10x", "backward_euler_100x"):
         assert len(info[f"/stage1/{run}/mesh"]["frames"]) >= 10
+        # the blow-up is shown over the steps it took, not at the start of the second it was planned for
+        assert 300 < events["frames"][0] <= 1000
     assert "/stage2/mode0_wdt1/mesh" in info
+    assert len(info["/stage2/mode0_wdt1/mesh"]["frames"]) == 4  # the mode and its three steps
     assert "/stage3/timings" in info and "/stage3/narrative" in info
-    assert path.stat().st_size < 50e6
+    # measurements only: the convergence runs and the timed runs draw nothing
+    drawn = {e.split("/")[2] for e in info if e.startswith(("/stage2/", "/stage3/")) and e.endswith("/mesh")}
+    assert drawn == {"mode0_wdt0.1", "mode0_wdt1", "mode47_wdt0.3", "mode47_wdt3", "mode93_wdt30"}
+    assert path.stat().st_size < 20e6
+
+
+def test_recording_views_are_labelled_seen_from_the_front_and_keyed(recording):
+    _, _, _, rec = recording
+    drawn = [(s.index, r) for s in rec.stages for r in s.runs if r.has_geometry]
+    assert [i for i, _ in drawn] == [1] * 5 + [2] * 5
+    for i, run in drawn:
+        assert run.label and run.label != run.name and run.camera == "front", run.name
+        assert list(run.keys) == ["strain"], run.name
+    # stage 1 on one physical scale: the strain of the sheet's weight hung from its top edge, rho g L / E
+    cfg = LESSON.config()
+    scales = {run.scales["strain"] for i, run in drawn if i == 1}
+    assert len(scales) == 1 and scales.pop() == pytest.approx(cfg.rho * G / cfg.E, rel=1e-12)
+    assert all(run.energy == "drift" for i, run in drawn if i == 1)
 
 
 def test_symplectic_euler_growth_and_crossover_helpers():

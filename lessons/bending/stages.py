@@ -12,6 +12,7 @@ from engine.energies.bending import BendingEnergy, bridson_u_kernel, theta_gradi
 from engine.integrators import make_integrator
 from engine.fields import vec3_ndarray
 from engine.model import Model
+from engine.recorder import RunView
 from engine.scenes import cloth
 from engine.statics import solve_static
 
@@ -93,15 +94,21 @@ def continuum_energy(B, R, area):
     return 0.5 * B * (1.0 / (2.0 * R)) ** 2 * area
 
 
-def log_sheet(ctx, name, x, triangles, energy: BendingEnergy, offset=(0.0, 0.0, 0.0)):
-    """One frame of a sheet coloured by bending energy density (nothing if not recording)."""
+CONTINUUM_KEY = "energy density / continuum"
+
+
+def log_sheet(ctx, name, label, x, triangles, energy: BendingEnergy, B: float = 1.0):
+    """One frame of a wrapped sheet in its own view, coloured by its bending energy density over
+    the continuum's 1/2 B H^2 on the cylinder of radius cfg.radius (yellow: the continuum's
+    value; nothing if not recording)."""
     rec = ctx.rec
     if not rec.enabled:
         return
-    from engine.recorder import magnitude_colors
-    rec.run(name)
+    R = ctx.cfg.radius
+    rec.run(name, RunView(label=label, camera="outside", energy=None))
     rec.set_time(0, 0.0)
-    rec.mesh(np.asarray(x) + np.asarray(offset), triangles, magnitude_colors(energy.energy_density(x)))
+    density = energy.energy_density(x) / (0.5 * B / (2.0 * R) ** 2)
+    rec.mesh(np.asarray(x), triangles, rec.colors(density, "magnitude", CONTINUUM_KEY, 1.0))
 
 
 # ------------------------------------------------------------------------- stage 1
@@ -196,17 +203,25 @@ def _half_angle_experiments(notes):
     return exps
 
 
-def _draw_opening_hinge(rec, notes):
-    """The hinge opening from flat to 3 rad, coloured by its energy density."""
-    from engine.recorder import magnitude_colors
-    rec.run("hinge")
-    scale = float(notes.energy_density(analytic_hinge(3.0)).max())
-    for k, th in enumerate(np.linspace(0.0, 3.0, 31)):
+def _draw_opening_hinge(rec, notes, frames: int = 121):
+    """The hinge opening from flat to 3 rad (the progress timeline is theta / 3 rad), coloured by
+    its energy density on the scale of the fully opened hinge, with its forces as lines."""
+    tris = np.array([[0, 1, 2], [1, 0, 3]])
+    top = analytic_hinge(3.0)
+    scale = float(notes.energy_density(top).max())
+    gain = 0.3 / float(np.linalg.norm(notes.forces(top), axis=1).max())  # the largest force: 0.3 m
+    rec.run("hinge", RunView(label=f"one hinge folding from theta = 0 to 3 rad; lines: its forces -dW/dx "
+                                   f"({gain:.2g} m per N)", camera="outside", energy=None),
+            n_steps=frames - 1, dt=3.0 / (frames - 1))
+    for k, th in enumerate(np.linspace(0.0, 3.0, frames)):
         x = analytic_hinge(th)
         rec.set_time(k, th)
-        rec.mesh(x, np.array([[0, 1, 2], [1, 0, 3]]), magnitude_colors(notes.energy_density(x), scale))
+        if k == 0:  # static names of the parts that stay put
+            rec.labels("names", [0.5 * (x[0] + x[1]) + [0, 0, 0.04], x[2] + [0, 0, 0.04]],
+                       ["the shared edge e", "fixed wing"])
+        rec.mesh(x, tris, rec.colors(notes.energy_density(x), "magnitude", ENERGY_KEY, scale))
         fx = notes.forces(x)
-        rec.line_strips("force", np.stack([x, x + 0.1 * fx], axis=1))
+        rec.line_strips("force", np.stack([x, x + gain * fx], axis=1), colors=[[255, 140, 40]], radii=0.006)
 
 
 # ------------------------------------------------------------------------- stage 2
@@ -255,8 +270,9 @@ def _curvature_estimates(ctx, kind, label, levels=(9, 17, 33)):
                 Experiment(f"{label}: the other hinges are flat (max |theta|)", 0.0,
                            float(np.abs(theta[~across]).max()), 1e-12, "abs", "rad", id=f"{kind}-other-hinges-flat"),
             ]
-            log_sheet(ctx, f"{kind}_n{n}", wrapped.vertices, flat.triangles, energy,
-                      (0.0 if kind == "grid" else 2.5, 0.0, 0.0))
+            variant = "" if cfg.bending == "notes" else f", {cfg.bending}"
+            log_sheet(ctx, f"{kind}_n{n}", f"{label}, cylinder R = {R:g} m{variant}", wrapped.vertices,
+                      flat.triangles, energy)
         phi = hs[-1] / (2 * R)
         ctx.progress(f"{label} n={n}: max error of theta/(h1+h2) (chord heights) {chord_err[-1]:.3e}, "
                      f"phi/sin(phi) - 1 = {phi / math.sin(phi) - 1:.3e}")
@@ -315,6 +331,8 @@ REGULAR = [("grid", 0.0, "right-triangle grid at 0 deg", "grid-0deg"),
            ("grid", 15.0, "right-triangle grid at 15 deg", "grid-15deg"),
            ("grid", 30.0, "right-triangle grid at 30 deg", "grid-30deg"),
            ("grid", -45.0, "right-triangle grid at -45 deg (diagonals around the cylinder)", "grid-minus45deg")]
+# the regular sheets drawn (at the middle level) with the notes' energy; grid 0 deg also with Discrete Shells'
+DRAWN = {("grid", 0.0): "grid at 0°", ("grid", -45.0): "grid at −45°"}
 
 
 def stage_continuum(ctx):
@@ -322,21 +340,21 @@ def stage_continuum(ctx):
     nf = cfg.finest
     levels = (nf, (nf + 1) // 2, (nf + 3) // 4)
     exps = []
-    shown = [0]  # sheets drawn so far (each is drawn beside the last)
     for kind, angle, label, slug in REGULAR:
-        exps += _regular_ratio(ctx, kind, angle, label, slug, levels, shown)
+        exps += _regular_ratio(ctx, kind, angle, label, slug, levels)
     for kind, label in (("grid", "jittered right-triangle grid"), ("lattice", "jittered equilateral lattice")):
-        exps += _jittered_ratio(ctx, kind, label, levels[1], shown)
+        exps += _jittered_ratio(ctx, kind, label, levels[1])
     return exps
 
 
-def _regular_ratio(ctx, kind, angle, label, slug, levels, shown):
+def _regular_ratio(ctx, kind, angle, label, slug, levels):
     """W_notes / W_continuum on three nested refinements, extrapolated (2 r(h) - r(2h)), against
     the closed form; at 0 deg on the grid also its finest value and error order, and on three
-    meshes the Discrete Shells ratio."""
+    meshes the Discrete Shells ratio. The DRAWN meshes are drawn at the middle level."""
     cfg = ctx.cfg
     nf = levels[0]
-    r = [sheet_ratio(cfg, kind, n, angle)[0] for n in levels]
+    sheets = [sheet_ratio(cfg, kind, n, angle) for n in levels]
+    r = [sh[0] for sh in sheets]
     extrapolated = 2 * r[0] - r[1]
     theory = closed_form_ratio(kind, angle)
     ctx.progress(f"{label}: W/W_cont = " + ", ".join(f"{v:.5f} (n={n})" for v, n in zip(r, levels))
@@ -350,17 +368,22 @@ def _regular_ratio(ctx, kind, angle, label, slug, levels, shown):
         exps.append(Experiment(f"{label}: the ratio's error shrinks at order 1 (the free-edge strip)", 1.0,
                                convergence_order(h, np.abs(np.array(r) - theory)), 0.05, "abs",
                                id=f"{slug}-ratio-error-order"))
+    short = DRAWN.get((kind, angle))
+    if short is not None and ctx.rec.enabled:
+        _, flat, energy, x = sheets[1]
+        log_sheet(ctx, f"{kind}_{angle:g}deg", f"{short}, notes' energy", x, flat.triangles, energy)
     if (kind, angle) in (("grid", 0.0), ("grid", 45.0), ("lattice", 0.0)):
         ds, flat, energy, x = sheet_ratio(cfg, kind, nf, angle, variant="discrete-shells")
         exps.append(Experiment(f"{label}: Discrete Shells / continuum at the finest level (n = {nf})", 1.0, ds, 1e-2,
                                "rel", id=f"{slug}-discrete-shells-ratio"))
-        if ctx.rec.enabled:
-            log_sheet(ctx, f"{kind}_{angle:g}deg", x, flat.triangles, energy, (2.5 * shown[0], 0.0, 0.0))
-            shown[0] += 1
+        if kind == "grid" and angle == 0.0 and ctx.rec.enabled:
+            _, flat, energy, x = sheet_ratio(cfg, kind, levels[1], angle, variant="discrete-shells")
+            log_sheet(ctx, f"{kind}_{angle:g}deg_discrete-shells", f"{short}, Discrete Shells", x,
+                      flat.triangles, energy)
     return exps
 
 
-def _jittered_ratio(ctx, kind, label, n, shown):
+def _jittered_ratio(ctx, kind, label, n):
     """No closed form on a jittered mesh: the ratio against the linearised sum of its own hinges,
     and above the regular mesh's."""
     cfg = ctx.cfg
@@ -374,9 +397,8 @@ def _jittered_ratio(ctx, kind, label, n, shown):
         Experiment(f"{label}, n = {n}: ratio / regular mesh's ratio exceeds 1.01 (mesh-dependent)", 1.01,
                    r / regular, 0.0, ">=", id=f"jittered-{kind}-ratio-above-regular"),
     ]
-    if ctx.rec.enabled:
-        log_sheet(ctx, f"{kind}_jittered", x, flat.triangles, energy, (2.5 * shown[0], 0.0, 0.0))
-        shown[0] += 1
+    if kind == "grid" and ctx.rec.enabled:
+        log_sheet(ctx, f"{kind}_jittered", "jittered grid, notes' energy", x, flat.triangles, energy)
     return exps
 
 
@@ -400,22 +422,34 @@ def fold_count(mesh3d, energy: BendingEnergy, x, n, threshold=0.1) -> list:
     return counts
 
 
-def mesh_logger(triangles, energy: BendingEnergy, offset=(0.0, 0.0, 0.0)):
-    """log(rec, state) for simulate(): the mesh coloured by bending energy density."""
-    from engine.recorder import magnitude_colors
+ENERGY_KEY = "bending energy density (J/m²)"
 
+
+def mesh_logger(triangles, energy: BendingEnergy, scale: float):
+    """log(rec, state) for simulate(): the mesh coloured by its bending energy density (yellow at
+    ``scale`` J/m^2)."""
     def log(rec, state):
         x = state.x.to_numpy().astype(np.float64)
-        rec.mesh(x + np.asarray(offset), triangles, magnitude_colors(energy.energy_density(x)))
+        rec.mesh(x, triangles, rec.colors(energy.energy_density(x), "magnitude", ENERGY_KEY, scale))
     return log
 
 
-def log_static(ctx, name_step, x, triangles, energy, offset, step, time):
+def displacement_logger(triangles, X, scale: float):
+    """log(rec, state) for simulate(): the mesh coloured by each vertex's distance from the rest
+    shape X (yellow at ``scale`` m)."""
+    def log(rec, state):
+        x = state.x.to_numpy().astype(np.float64)
+        rec.mesh(x, triangles, rec.colors(np.linalg.norm(x - X, axis=1), "magnitude",
+                                          "displacement (m)", scale))
+    return log
+
+
+def log_static(ctx, text, x, colors, triangles, step, time):
+    """The static equilibrium x as the current run's frame at (step, time), marked with ``text``."""
     if ctx.rec.enabled:
-        from engine.recorder import magnitude_colors
         ctx.rec.set_time(step, time)
-        ctx.rec.mesh(x + np.asarray(offset), triangles, magnitude_colors(energy.energy_density(x)))
-        ctx.rec.mark(name_step, level="INFO")
+        ctx.rec.mesh(x, triangles, colors)
+        ctx.rec.mark(text, level="INFO")
 
 
 CLOTHS = ("soft", "mid", "stiff")  # the sweep B/10, B, 10 B, in the experiments' ids
@@ -432,8 +466,10 @@ def stage_cloth(ctx):
         if not res.converged:
             ctx.progress(f"B = {B:.3g}: {res.message}")
         steps = int(round(1.0 / cfg.dt))
-        log_static(ctx, f"cloth_B{B:.3g}: static equilibrium after {res.iterations} Newton iterations", res.x,
-                   scene.mesh.triangles, scene.bending, (1.2 * k, 0.0, 0.0), steps + 1, steps * cfg.dt)
+        if ctx.rec.enabled:  # the equilibrium drawn over the fall's last frame
+            log_static(ctx, f"B = {B:.3g} N m: static equilibrium after {res.iterations} Newton iterations", res.x,
+                       ctx.rec.colors(scene.bending.energy_density(res.x), "magnitude", ENERGY_KEY),
+                       scene.mesh.triangles, steps + 1, steps * cfg.dt)
         count = fold_count(scene.mesh, scene.bending, res.x, cfg.cloth_n)
         folds.append(float(np.mean(count)))
         ctx.progress(f"B = {B:.3g} N m: folds along the three lines {count}, Newton {res.iterations} iterations, "
@@ -467,13 +503,19 @@ def _fall_and_settle(ctx, k: int, B: float):
     x0[:, 0] = 0.5 + (X[:, 0] - 0.5) * cfg.cloth_gap
     x0[model.free, 1] += 1e-3 * rng.standard_normal(int(model.free.sum()))
     state = model.make_state(x0)
-    offset = (1.2 * k, 0.0, 0.0)
     integ = make_integrator("backward-euler", solver="cholesky")
     if explicit and k == 0:
         ctx.progress(f"the falls are damped relaxations: they stay backward Euler under --integrator "
                      f"{ctx.stepping.integrator} (fixed)")
+    # one colour scale for the sweep: 1/2 B k^2 at the middle B for a fold of radius 1/k = its bending
+    # length (B/(rho g))^(1/3) (about 0.07 J/m^2 at the defaults)
+    B_mid = cfg.cloth_B
+    scale = 0.5 * B_mid / (B_mid / (cfg.cloth_rho * G)) ** (2.0 / 3.0)
+    # a 1 s fall under backward Euler, then Newton's static equilibrium (marked); no energy plot: the fall is
+    # a damped relaxation, not a motion we measure
+    view = RunView(label=f"cloth, B = {B:.3g} N m", camera="front", energy=None)
     simulate(ctx, f"cloth_B{B:.3g}", model, state, cfg.dt, steps, integ, every=cfg.record_every,
-             log=mesh_logger(scene.mesh.triangles, scene.bending, offset), fixed=explicit)
+             log=mesh_logger(scene.mesh.triangles, scene.bending, scale), fixed=explicit, view=view)
     res = solve_static(model, state.x.to_numpy().astype(np.float64), tol=cfg.static_tol, max_iter=400,
                        raise_on_failure=False)
     return scene, res
@@ -556,18 +598,16 @@ def _rest_shape(cfg, shell: _Shell):
 
 def _linear_response(ctx, shell: _Shell, residuals: list):
     """The shell under its own weight and twice it: a small displacement, the pins carry the
-    weight, and twice the load gives twice the displacement (the residuals go to ``residuals``)."""
+    weight, and twice the load gives twice the displacement (the residuals go to ``residuals``).
+    Drawn with the displacement magnified, both on the scale of the larger one."""
     cfg = ctx.cfg
-    exps, d = [], []
+    exps, d, shapes = [], [], []
     for factor in (1.0, 2.0):
         model, energy = shell.under(factor * G)
         res = solve_static(model, tol=cfg.static_tol, max_iter=200, raise_on_failure=False)
         residuals.append(res.residual)
         d.append(float(np.linalg.norm(res.x - shell.X, axis=1).max()))
-        if ctx.rec.enabled:
-            ctx.rec.run(f"weight_x{factor:g}")
-            log_static(ctx, f"weight x{factor:g}: max displacement {d[-1]:.3g} m", res.x, shell.mesh.triangles,
-                       energy, (0.0, 0.0, 0.0), 0, 0.0)
+        shapes.append(res.x)
         if factor == 1.0:
             weight = float(shell.masses.sum()) * G
             vertex_weight = float(shell.masses[model.free].max()) * G
@@ -581,6 +621,14 @@ def _linear_response(ctx, shell: _Shell, residuals: list):
     exps.append(Experiment("twice the weight gives twice the displacement (ratio)", 2.0, d[1] / d[0], 3e-2, "rel",
                            id="linear-response"))
     ctx.progress(f"displacements {d[0]:.3e} m, {d[1]:.3e} m (ratio {d[1] / d[0]:.4f})")
+    if ctx.rec.enabled:
+        gain = float(f"{0.1 * shell.R / d[1]:.1g}")  # twice the weight drawn 10% of R out of shape
+        for factor, x, dmax in zip((1.0, 2.0), shapes, d):
+            ctx.rec.run(f"weight_x{factor:g}", RunView(label=f"{'own' if factor == 1 else 'twice its'} weight, "
+                                                             f"displacement ×{gain:g}", energy=None))
+            u = np.linalg.norm(x - shell.X, axis=1)
+            log_static(ctx, f"weight x{factor:g}: max displacement {dmax:.3g} m", shell.X + gain * (x - shell.X),
+                       ctx.rec.colors(u, "magnitude", "displacement (m)", d[1]), shell.mesh.triangles, 0, 0.0)
     return exps
 
 
@@ -591,7 +639,7 @@ def _release(ctx, shell: _Shell, x_pushed, push_d, exps):
     theorem). Returns ``exps`` with those experiments."""
     cfg = ctx.cfg
     X, masses = shell.X, shell.masses
-    free_model, free_energy = shell.under(0.0)
+    free_model, _ = shell.under(0.0)
     state = free_model.make_state(x_pushed)
     steps = int(round(2.0 / cfg.dt))
     W0 = free_model.potential_energy(state.x)
@@ -603,10 +651,12 @@ def _release(ctx, shell: _Shell, x_pushed, push_d, exps):
             motion[0] += float((masses[:, None] * (st.x.to_numpy() - X) ** 2).sum())
             motion[1] += float((masses[:, None] * st.v.to_numpy() ** 2).sum())
 
+    view = RunView(label=f"{cfg.push:g}x push, released ({method})")
     _, kin, pot = simulate(ctx, "release", free_model, state, cfg.dt, steps,
                            make_integrator("backward-euler", solver="cholesky"), every=cfg.record_every,
                            observe=None if method == "backward-euler" else observe,
-                           log=mesh_logger(shell.mesh.triangles, free_energy, (1.5, 0.0, 0.0)), energy_bound=10 * W0)
+                           log=displacement_logger(shell.mesh.triangles, X, push_d * shell.R), energy_bound=10 * W0,
+                           view=view)
     back = float(np.abs(state.x.to_numpy() - X).max()) / shell.R
     ctx.progress(f"push: max displacement {push_d:.3e} R; {steps * cfg.dt:g} s after the release: {back:.2e} R")
     if method == "backward-euler":

@@ -69,6 +69,7 @@ LESSON = Lesson(
         ("what implicit buys: wall-clock per simulated second against stiffness", stages.stage_speed),
     ]),
     order=5,
+    camera="front",  # every run is a cloth hanging in the x-z plane
 )
 
 __all__ = ["LESSON", "ExplicitImplicitConfig"]

@@ -13,12 +13,13 @@ import numpy as np
 
 from engine import diagnostics
 from engine.analysis import fit_slope
+from engine.constants import G
 from engine.errors import BlowUpError
 from engine.integrators import make_integrator
 from engine.stability import gershgorin_lambda_max, lambda_max_power
 from engine.theory.schemes import symplectic_euler_growth
 from engine.fields import vec3_ndarray
-from engine.recorder import strain_colors
+from engine.recorder import RunView
 from engine.scenes import cloth
 from engine.statics import solve_static
 
@@ -29,22 +30,24 @@ from .._scene import simulate
 # ------------------------------------------------------------------ cloths, modes, integrators
 
 
-def cloth_logger(scene, offset=(0.0, 0.0, 0.0), scale: float | None = None, skip: int = 1):
-    """log(rec, state) for simulate(): the cloth coloured by strain (blue compressed, red
-    stretched); with ``skip`` > 1 only every skip-th call draws (and always the first)."""
+def cloth_logger(scene, scale: float, gain: float = 1.0):
+    """log(rec, state) for simulate(): the cloth coloured by the mean strain of the springs at each
+    vertex (blue compressed, red stretched; full colour at ``scale``), its displacement from the
+    rest shape drawn ``gain`` times larger."""
     sp = scene.springs
     tris = scene.mesh.triangles
-    calls = [0]
+    X = scene.model.X
 
     def log(rec, state):
-        k = calls[0]
-        calls[0] += 1
-        if k % skip:
-            return
         x = state.x.to_numpy().astype(np.float64)
         s = vertex_strain(len(x), sp.edges_np, edge_strain(x, sp.edges_np, sp.L_np))
-        rec.mesh(x + np.asarray(offset), tris, strain_colors(s, scale))
+        rec.mesh(X + gain * (x - X) if gain != 1.0 else x, tris, rec.colors(s, "signed", "strain", scale))
     return log
+
+
+def _vertex_strain(scene, x) -> np.ndarray:
+    sp = scene.springs
+    return vertex_strain(len(x), sp.edges_np, edge_strain(x, sp.edges_np, sp.L_np))
 
 
 class Watched:
@@ -166,7 +169,9 @@ def _hanging_cloth(ctx, scene):
     release = E0 - E_eq  # what the fall from the flat shape to the hanging one can set free
     bound = E0 + release
     ctx.progress(f"energy: start {E0:.6g} J, equilibrium {E_eq:.6g} J; blow-up bound start + release = {bound:.6g} J")
-    strain_scale = float(np.abs(edge_strain(x_eq, scene.springs.edges_np, scene.springs.L_np)).max())
+    # full colour: rho g L / E, the strain of the 1 m sheet's weight hung from its whole top edge (about the
+    # median strain of the hanging cloth; its corners, where the weight gathers, go beyond it)
+    strain_scale = cfg.rho * G * 1.0 / cfg.E
     return _HangingCloth(scene, x_eq, sag, dt_true, modes, seed, E0, bound, strain_scale), exps
 
 
@@ -194,10 +199,13 @@ def _symplectic_below(ctx, cl: _HangingCloth):
     dt = cfg.below * cl.dt_true
     n_below = int(math.ceil(cfg.explicit_time / dt))
     state = model.make_state(X + cl.seed)
+    # stage 1's energy plots show the total's relative change: the total is mostly the weight's potential
+    # energy, beside which a blow-up (bound: start + release, a few mJ) or backward Euler's damping is invisible
     try:
         steps, K, W = simulate(ctx, f"symplectic_{cfg.below:g}x", model, state, dt, n_below, "symplectic-euler",
                                every=cfg.record_every, energy_bound=cl.bound, fixed=True,
-                               log=cloth_logger(cl.scene, (-1.2, 0.0, 0.0), cl.strain_scale))
+                               log=cloth_logger(cl.scene, cl.strain_scale),
+                               view=RunView(label=f"symplectic Euler, {cfg.below:g} × the limit", energy="drift"))
         survived = int(steps[-1])
         ctx.progress(f"{cfg.below:g} x limit: largest energy excess {(K + W).max() - cl.E0:.2e} J over {n_below} "
                      "steps")
@@ -216,14 +224,23 @@ def _symplectic_above(ctx, cl: _HangingCloth):
     model, X = cl.model, cl.model.X
     dt = cfg.above * cl.dt_true
     n_above = int(math.ceil(cfg.explicit_time / dt))
+    # shown over about 1.5 x the steps the fastest mode (growing lam per step) takes to lift the seed's energy
+    # (at most 1/2 w_max^2 M |seed|^2) to the blow-up bound, not over the second it was planned for
+    lam = symplectic_euler_growth((cfg.above * 2.0) ** 2)
+    seed_energy = 0.5 * (2.0 / cl.dt_true) ** 2 * float((model.mass[:, None] * cl.seed ** 2).sum())
+    grow = math.log(max((cl.bound - cl.E0) / seed_energy, 1.0)) / (2.0 * math.log(lam)) if lam > 1 else n_above
+    span = min(n_above, int(math.ceil(1.5 * grow)) + 1) * dt
     detected, message, tracks = [], [], []
-    for sign, name in ((1.0, f"symplectic_{cfg.above:g}x"), (-1.0, f"symplectic_{cfg.above:g}x_opposite_seed")):
+    for sign, name, what in ((1.0, f"symplectic_{cfg.above:g}x", ""),
+                             (-1.0, f"symplectic_{cfg.above:g}x_opposite_seed", ", opposite seed")):
         state = model.make_state(X + sign * cl.seed)
         track = []
         try:
             simulate(ctx, name, model, state, dt, n_above, "symplectic-euler", every=1, energy_bound=cl.bound,
-                     fixed=True, log=cloth_logger(cl.scene, (-1.2, 0.0, 0.0), cl.strain_scale),
-                     observe=lambda s, st: track.append(st.x.to_numpy().astype(np.float64)))
+                     fixed=True, log=cloth_logger(cl.scene, cl.strain_scale),
+                     observe=lambda s, st: track.append(st.x.to_numpy().astype(np.float64)),
+                     view=RunView(label=f"symplectic Euler, {cfg.above:g} × the limit{what}", energy="drift",
+                                  span=span))
             detected.append(n_above)
             message.append("")
         except BlowUpError as exc:
@@ -283,15 +300,18 @@ def _backward_euler_far_above(ctx, cl: _HangingCloth, pinned_moved: float):
         in_plane = np.abs(shapes[:, :, 1]).max(axis=1) < 1e-9 * np.abs(shapes).max(axis=(1, 2))
         w1 = math.sqrt(float(w2[in_plane & (w2 > 0)].min()))
     exps, residuals, bad_steps = [], [], 0
-    for k, (which, factor, newton) in enumerate((("big", cfg.big, 1), ("huge", cfg.huge, 50))):
+    for which, factor, newton in (("big", cfg.big, 1), ("huge", cfg.huge, 50)):
         dt = factor * cl.dt_true
         n_steps = int(math.ceil(cfg.implicit_time / dt))
         be = Watched(make_integrator("backward-euler", solver="pcg", tol=1e-8, newton_iterations=newton,
                                      newton_tol=1e-8, max_iter=5000, exact_near_solution=False))
         state = model.make_state(X + cl.seed)
         every = max(1, min(cfg.record_every, n_steps // 20))
+        newton_text = "1 Newton step" if newton == 1 else "Newton converged"
         steps, K, W = simulate(ctx, f"backward_euler_{factor:g}x", model, state, dt, n_steps, be, every=every,
-                               fixed=True, log=cloth_logger(cl.scene, (1.2 * k, 0.0, 0.0), cl.strain_scale))
+                               fixed=True, log=cloth_logger(cl.scene, cl.strain_scale),
+                               view=RunView(label=f"backward Euler, {factor:g} × the limit, {newton_text}",
+                                            energy="drift"))
         x = state.numpy().x
         pinned_moved = max(pinned_moved, float(np.abs(x[model.pinned] - X[model.pinned]).max()))
         distance = float(np.abs(x - cl.x_eq).max()) / cl.sag
@@ -339,18 +359,22 @@ def _mode_damping(ctx):
     w, _, shapes = free_modes(model, X, planar=True)
     order = np.argsort(w)
     low, mid, top = order[0], order[len(order) // 2], order[-1]
+    which = {low: "slowest", mid: "middle", top: "fastest"}
     amplitude = 1e-6
     cases = [(low, 0.1), (low, 1.0), (mid, 0.3), (mid, 3.0), (top, 30.0)]
-    for k, (mode, wdt) in enumerate(cases):
+    gain = 0.05 / amplitude  # the mode drawn 5 cm out of shape
+    for mode, wdt in cases:
         dt = wdt / w[mode]
         u = shapes[mode] * (amplitude / np.abs(shapes[mode]).max())
         state = model.make_state(X + u)
         E0 = diagnostics.total_energy(model, state)  # the rest shape has zero energy (no gravity)
         be = make_integrator("backward-euler", solver="cholesky", tol=1e-12, newton_iterations=5, newton_tol=1e-12)
-        steps, K, W = simulate(ctx, f"mode{mode}_wdt{wdt:g}", model, state, dt, 3, be, every=1, fixed=True,
-                               log=cloth_logger(scene, (1.2 * k, 0.0, 0.0)))
-        factor = float(((K[-1] + W[-1]) / E0) ** (1.0 / 3.0))
         theory = 1.0 / (1.0 + wdt * wdt)
+        view = RunView(label=f"{which[mode]} mode ({mode}), w dt = {wdt:g}, drawn ×{gain:g}")
+        steps, K, W = simulate(ctx, f"mode{mode}_wdt{wdt:g}", model, state, dt, 3, be, every=1, fixed=True,
+                               log=cloth_logger(scene, float(np.abs(_vertex_strain(scene, X + u)).max()), gain),
+                               view=view)
+        factor = float(((K[-1] + W[-1]) / E0) ** (1.0 / 3.0))
         ctx.progress(f"mode {mode} (w = {w[mode]:.4g} rad/s), w dt = {wdt:g}: energy factor per step {factor:.6f}, "
                      f"theory {theory:.6f}; amplitude factor {math.sqrt(factor):.6f}")
         exps.append(Experiment(f"backward Euler: energy factor per step of a mode at w dt = {wdt:g} is "
@@ -370,10 +394,10 @@ def _convergence_orders(ctx):
     n0 = max(20, int(math.ceil(T / (0.3 * dt_limit))))  # coarsest level: dt <= 0.3 x the explicit limit
     levels = [n0, 2 * n0, 4 * n0]
 
-    def run(name, integ, n_steps, v0=None):
+    def run(name, integ, n_steps, v0=None):  # measurements only: nothing drawn
         state = model.make_state(X, v0)
         simulate(ctx, name, model, state, T / n_steps, n_steps, integ, every=n_steps, energy_every=n_steps,
-                 fixed=True, log=cloth_logger(scene))
+                 fixed=True)
         return state.numpy().x
 
     ref_fine = run("reference_verlet_fine", "velocity-verlet", 8 * levels[-1])
@@ -479,7 +503,6 @@ def _timed_runs(ctx, k: int, E: float, blown: list):
     dt_limit = 2.0 / math.sqrt(abs(lambda_max_power(model, rtol=1e-6)))
     E0 = diagnostics.total_energy(model, model.make_state(X))
     bound = E0 + float(model.mass.sum()) * float(np.linalg.norm(model.gravity)) * 1.0  # + weight x 1 m
-    offset = (1.2 * k, 0.0, 0.0)
     row = dict(E=E, sqrt_cond=math.sqrt(1.0 + (2.0 / dt_limit * cfg.frame_dt) ** 2))
     runs = [("symplectic", "symplectic-euler", 0.9 * dt_limit, int(math.ceil(window / (0.9 * dt_limit))))]
     runs += [(f"backward_euler_{solver}", Watched(make_integrator("backward-euler", solver=solver, tol=1e-8,
@@ -491,9 +514,9 @@ def _timed_runs(ctx, k: int, E: float, blown: list):
         state = model.make_state(X)
         name = f"E{E:.3g}_{label}"
         try:
+            # timed and measured only: nothing drawn (drawing would be timed with the steps)
             steps, K, W = simulate(ctx, name, model, state, dt, n, integ, every=1, energy_every=n,
                                    energy_bound=bound, fixed=True,
-                                   log=cloth_logger(scene, (offset[0], 0.0, -1.2 * j), skip=n),
                                    observe=lambda s, st: stamps.append(time.perf_counter()))
         except BlowUpError as exc:
             blown.append(name)
@@ -542,10 +565,13 @@ def _crossovers(ctx, Es, rows, steps_exp, cg) -> list[str]:
 
 
 def _timings_table(rows) -> str:
-    """The sweep as a markdown table (the recording's timings document)."""
-    lines = ["| E (N/m) | explicit dt (us) | explicit steps / sim s | PCG iterations / step | sqrt(1 + w_max^2 dt^2) | "
-             "explicit s / sim s | BE-PCG s / sim s | BE-Cholesky s / sim s |", "|---|---|---|---|---|---|---|---|"]
+    """The sweep as a markdown table (the recording's timings document), narrow enough for a side panel."""
+    lines = ["| E (N/m) | explicit dt (µs) | steps / s | CG / step | √(1 + w²dt²) | explicit | BE-PCG | BE-Cholesky |",
+             "|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['E']:.3g} | {r['dt_exp'] * 1e6:.1f} | {r['steps_exp']:.0f} | {r['cg_pcg']:.0f} | "
                      f"{r['sqrt_cond']:.0f} | {r['t_exp']:.3g} | {r['t_pcg']:.3g} | {r['t_cholesky']:.3g} |")
+    lines.append("\nsteps / s: explicit steps per simulated second; CG / step: PCG iterations per backward-Euler "
+                 "step; √(1 + w²dt²): the square root of the condition-number bound at dt = one frame; explicit, "
+                 "BE-PCG, BE-Cholesky: wall-clock seconds per simulated second.")
     return "\n".join(lines)
