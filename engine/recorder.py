@@ -260,8 +260,8 @@ def stage_view(stage: StagePlan, lesson_title: str = "") -> rrb.Container:
     runs = stage.scene_runs
     results = rrb.TextDocumentView(origin=f"{origin}/results", name="results")
     name = f"{stage.index}. {stage.title}"
-    if not runs:
-        return rrb.Horizontal(side_panel, results, column_shares=[1, 1], name=name)
+    if not runs:  # the results take the scenes' place
+        return rrb.Horizontal(results, side_panel, column_shares=[3, 1], name=name)
     columns, strip = _grid_shape(runs)
     rows = math.ceil(len(runs) / columns)
     cell_w, cell_h = _GRID_W / columns, _GRID_H / rows
@@ -534,10 +534,12 @@ class Recorder(NullRecorder):
                 self._send_live_layout()
         self._frame_bytes = 0
 
-    def _drew(self, points: np.ndarray, *arrays) -> None:
-        """Note drawn geometry: its bounding box and its bytes in this frame."""
+    def _drew(self, points: np.ndarray, *arrays, frame: bool = True) -> None:
+        """Note drawn geometry: its bounding box and (``frame``: it is per-frame data) its bytes in
+        this frame."""
         pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        self._frame_bytes += pts.size * 4 + sum(np.asarray(a).nbytes for a in arrays if a is not None) + 1
+        if frame:
+            self._frame_bytes += pts.size * 4 + sum(np.asarray(a).nbytes for a in arrays if a is not None) + 1
         run = self._run
         if run is None or pts.size == 0:
             return
@@ -585,7 +587,7 @@ class Recorder(NullRecorder):
     def labels(self, entity: str, positions, texts, colors=None) -> None:
         """Text labels at points (e.g. the name of each of several bodies drawn side by side)."""
         pts = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
-        self._drew(pts)
+        self._drew(pts, frame=False)  # framed by the camera, but static: not a frame of the run
         self._rec.log(self._path(entity), rr.Points3D(pts, labels=list(texts), radii=0.0,
                                                       colors=colors if colors is not None else [[230, 230, 230]]),
                       static=True)
