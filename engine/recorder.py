@@ -169,6 +169,7 @@ class RunPlan:
     energy: str | None
     span: float | None = None
     n_steps: int | None = None
+    duration: float | None = None     # planned simulated time (n_steps x dt)
     lo: np.ndarray | None = None      # bounding box of everything drawn
     hi: np.ndarray | None = None
     box0: tuple | None = None         # the first frame's box
@@ -329,7 +330,7 @@ class NullRecorder:
         pass
 
     def run(self, name: str, view: RunView | None = None, n_steps: int | None = None,
-            dt: float | None = None) -> str:
+            dt: float | None = None, draw_every: int | None = None) -> str:
         return name
 
     def wants_frame(self, step: int, sim_time: float) -> bool:
@@ -428,6 +429,8 @@ class Recorder(NullRecorder):
         self._outbox: dict = {}       # entity -> kept samples not yet sent
         self._pending_count = 0
         self._energy_width = None     # steps per energy bin, fixed once the run has run long
+        self._chunk_ticks = 0.0       # progress ticks between the moments the run can draw
+        self._next_target = None
         self._energy_dt = 0.0
         self._energy_first_total = None
 
@@ -443,9 +446,11 @@ class Recorder(NullRecorder):
             self._send_live_layout()
 
     def run(self, name: str, view: RunView | None = None, n_steps: int | None = None,
-            dt: float | None = None) -> str:
+            dt: float | None = None, draw_every: int | None = None) -> str:
         """Start a run inside the current stage; returns its entity prefix. ``n_steps`` and ``dt``
-        (planned) set its span on the progress timeline unless ``view.span`` does."""
+        (planned) set its span on the progress timeline unless ``view.span`` does; ``draw_every``:
+        the steps between the moments the run can draw (its chunks), so the frames it is asked
+        for are the chunk ends nearest to evenly spaced ones."""
         self._end_run()
         view = view or RunView()
         safe = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in name)
@@ -455,11 +460,15 @@ class Recorder(NullRecorder):
             span = n_steps * dt
         self._run = RunPlan(name=name, entity=f"/{self._prefix}", label=view.label or name,
                             camera=view.camera or self.default_camera, energy=view.energy,
-                            span=span if span and span > 0 else None, n_steps=n_steps)
+                            span=span if span and span > 0 else None, n_steps=n_steps,
+                            duration=n_steps * dt if n_steps and dt else None)
         self._energy_dt = float(dt or 0.0)
+        self._chunk_ticks = (PROGRESS_TICKS * draw_every * dt / self._run.span
+                             if draw_every and dt and self._run.span else 0.0)
         if self.stages:
             self.stages[-1].runs.append(self._run)
         self._frame_tick = -1
+        self._next_target = None  # the progress tick the run's next frame is meant for
         if self.live:  # show the runs so far, on this stage's tab
             self._send_live_layout()
         return self._prefix
@@ -505,7 +514,16 @@ class Recorder(NullRecorder):
         if run.n_steps is not None and step >= run.n_steps:
             return True
         spacing = PROGRESS_TICKS / self._allowed_frames()
-        return self._tick(sim_time, step) >= self._frame_tick + spacing - 1e-9
+        # the frames are meant for the moments k * spacing; a run draws at the chunk end nearest
+        # to the next of them (at most half a chunk early), and skips those it has passed
+        reach = self._tick(sim_time, step) + 0.5 * self._chunk_ticks + 1e-9
+        if self._next_target is None:
+            self._next_target = spacing
+        if reach < self._next_target:
+            return False
+        while self._next_target <= reach:
+            self._next_target += spacing
+        return True
 
     def frame_spacing(self, n_steps: int) -> int:
         """The step spacing a run of ``n_steps`` needs to offer FRAMES_PER_RUN frames."""

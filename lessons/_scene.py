@@ -82,7 +82,8 @@ def recorded_run(ctx, name: str, dt: float, n_steps: int, every: int, advance, s
     taken at the same steps either way), progress when it ends, and a blow-up drawn at its step,
     marked in the recording and re-raised."""
     rec = ctx.rec
-    rec.run(name, view, n_steps=n_steps, dt=dt)
+    draw_every = _divisor_at_most(every, rec.frame_spacing(n_steps)) if log is not None and rec.enabled else None
+    rec.run(name, view, n_steps=n_steps, dt=dt, draw_every=draw_every)
 
     def on_energies(steps, K, W):
         if not rec.enabled:
@@ -93,10 +94,8 @@ def recorded_run(ctx, name: str, dt: float, n_steps: int, every: int, advance, s
             for s, k, w in zip(steps, K, W):
                 rec.energies([k], [w], dt, first_step=int(s) - 1)
 
-    draw = draw_every = None
-    if log is not None and rec.enabled:
-        draw_every = _divisor_at_most(every, rec.frame_spacing(n_steps))
-
+    draw = None
+    if draw_every is not None:
         def draw(step, last=False):
             if last or rec.wants_frame(step, step * dt):
                 rec.set_time(step, step * dt)

@@ -51,7 +51,7 @@ class CallRecorder(NullRecorder):
         self.marks: list[tuple] = []
         self.runs: list[str] = []
 
-    def run(self, name, view=None, n_steps=None, dt=None):
+    def run(self, name, view=None, n_steps=None, dt=None, draw_every=None):
         self.runs.append(name)
         return name
 

@@ -121,12 +121,15 @@ def test_default_recording_is_within_the_size_budget(layouts, lesson_id):
 @pytest.mark.parametrize("lesson_id", LESSON_IDS)
 def test_runs_draw_enough_frames_to_see_them_move(layouts, lesson_id):
     """A run stepped through the lesson runner draws tens of frames, not a slideshow: at least
-    MIN_FRAMES_PER_RUN when it ran that many chunks of steps (runs that blew up early or
-    drew a single state are exempt)."""
+    MIN_FRAMES_PER_RUN over its span on the progress timeline (pro rata when the stage gives its
+    runs a common span longer than this run; at most one per step; runs that blew up early or drew
+    a single state are exempt)."""
     from engine.recorder import MIN_FRAMES_PER_RUN
     _, rec, _, _ = layouts[lesson_id]
     for stage in rec.stages:
         for run in stage.scene_runs:
-            if run.span is None or run.has_events or not run.n_steps:
+            if run.span is None or run.has_events or not run.n_steps or not run.duration:
                 continue
-            assert run.frames >= min(MIN_FRAMES_PER_RUN, run.n_steps + 1), (stage.index, run.label, run.frames)
+            share = min(1.0, run.duration / run.span)
+            expected = min(math.floor(MIN_FRAMES_PER_RUN * share), run.n_steps + 1)
+            assert run.frames >= expected, (stage.index, run.label, run.frames, expected)

@@ -10,8 +10,8 @@ timeline the viewer opens on (what it shows first; CHECK_AT):
     entities they show (scalars, text), read from the recording's schema;
 and the tab the viewer opens on has at least one scene view with something drawn.
 
-The recordings come from one ``python -m lessons run all --record <tmp>`` per session (about
-90 s), or from ELASTIC_VIEWER_RECORDINGS=<dir with <lesson>.rrd files> to check existing ones.
+The recordings are the session's default recordings (every lesson at its defaults, made once in
+tests/conftest.py), or ELASTIC_VIEWER_RECORDINGS=<dir with <lesson>.rrd files> to check existing ones.
 When the viewer cannot run here the tests fail, saying what is missing and how to install it;
 ELASTIC_SKIP_VIEWER=1 skips them instead. Select them with ``-m viewer``. The measured
 fractions are printed (``-rA`` or ``-s`` shows them; a failure shows them anyway).
@@ -19,8 +19,6 @@ fractions are printed (``-rA`` or ``-s`` shows them; a failure shows them anyway
 from __future__ import annotations
 
 import os
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -58,24 +56,17 @@ def _skip_or_fail(reason: str):
 
 
 @pytest.fixture(scope="session")
-def viewer_recordings(tmp_path_factory) -> Path:
-    """A directory with <lesson>.rrd for every lesson: ELASTIC_VIEWER_RECORDINGS, else a fresh
-    ``python -m lessons run all --record <tmp>``."""
+def viewer_recordings(request) -> Path:
+    """A directory with <lesson>.rrd for every lesson: ELASTIC_VIEWER_RECORDINGS, else the
+    session's default recordings (tests/conftest.py: default_recordings, shared with
+    tests/test_recordings.py)."""
     given = os.environ.get("ELASTIC_VIEWER_RECORDINGS")
     if given:
         return Path(given)
-    out = tmp_path_factory.mktemp("viewer-recordings")
-    t0 = time.monotonic()
-    proc = subprocess.run([sys.executable, "-m", "lessons", "run", "all", "--record", str(out), "--quiet"],
-                          cwd=ROOT, stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=1800)
-    absent = [i for i in LESSON_IDS if not (out / f"{i}.rrd").is_file()]
-    # Exit 1 (an experiment failed) still writes every recording; the lesson tests report that.
-    if proc.returncode not in (0, 1) or absent:
-        pytest.fail(f"python -m lessons run all --record {out} exited {proc.returncode} after "
-                    f"{time.monotonic() - t0:.0f} s, recordings missing: {absent}\n{proc.stderr[-3000:]}",
-                    pytrace=False)
-    print(f"recorded every lesson in {time.monotonic() - t0:.0f} s")
-    return out
+    made = request.getfixturevalue("default_recordings")
+    folders = {path.parent for path, _ in made.values()}
+    assert len(folders) == 1, folders
+    return folders.pop()
 
 
 @pytest.mark.parametrize("lesson_id", LESSON_IDS)
