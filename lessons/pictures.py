@@ -1,5 +1,6 @@
 """Pictures of the recordings as the real Rerun viewer shows them, for the README.
 
+    python -m lessons.pictures --readme               # the README's pictures, docs/pictures/*.jpg
     python -m lessons.pictures                        # recordings/*.rrd -> docs/pictures/
     python -m lessons.pictures recordings/bending.rrd --tab 4 --out /tmp/pics
     python -m lessons.pictures --also bending=4 --also springs=5
@@ -82,7 +83,35 @@ def parser() -> argparse.ArgumentParser:
                         "(do not pause)")
     p.add_argument("--timeout", type=float, default=120.0, metavar="S",
                    help="seconds to wait for the viewer to load a recording (default: 120)")
+    p.add_argument("--readme", action="store_true",
+                   help="the README's pictures: for every recording its opening tab and the tab README_TABS "
+                        "names, paused at progress 900 (of 1000: late in every run, the reflected pulses, the settled folds), as 1280x800 JPEGs docs/pictures/"
+                        "<lesson>-stage<N>.jpg")
     return p
+
+
+# The README shows each lesson's opening tab and one more that is characteristic of it.
+README_TABS = {"rod-waves": 4, "springs": 2, "area-springs": 2, "bending": 4, "explicit-vs-implicit": 2}
+README_TIME = 900.0
+README_SIZE = (1280, 800)
+
+
+def _readme_pictures(rrds: list[Path], out: Path, timeout: float, log=print) -> None:
+    """Photograph into a scratch directory, then keep the stage pictures as small JPEGs."""
+    import tempfile
+
+    from PIL import Image
+    with tempfile.TemporaryDirectory() as scratch:
+        for rrd in rrds:
+            also = [README_TABS[rrd.stem]] if rrd.stem in README_TABS else []
+            for path in photograph(rrd, Path(scratch), (1600, 1000), None, also, timeout, README_TIME, log=log):
+                if "-stage" not in path.stem:
+                    continue
+                target = out / f"{path.stem}.jpg"
+                Image.open(path).convert("RGB").resize(README_SIZE, Image.LANCZOS).save(
+                    target.with_suffix(".jpg.tmp"), "JPEG", quality=85, optimize=True)
+                os.replace(target.with_suffix(".jpg.tmp"), target)
+                log(f"{rrd.stem}: {target} ({target.stat().st_size // 1000} kB)")
 
 
 def _write(path: Path, png: bytes) -> None:
@@ -168,6 +197,13 @@ def main(argv: list[str] | None = None) -> int:
     except argparse.ArgumentTypeError as exc:
         print(f"python -m lessons.pictures: {exc}", file=sys.stderr)
         return 2
+    if args.readme:
+        try:
+            _readme_pictures(rrds, out, args.timeout, log=lambda s: print(s, flush=True))
+        except ViewerUnavailable as exc:
+            print(f"python -m lessons.pictures: {exc}", file=sys.stderr)
+            return 1
+        return 0
     for rrd in rrds:
         also = [n for lesson, n in args.also if lesson == rrd.stem]
         try:
