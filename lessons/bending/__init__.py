@@ -42,7 +42,8 @@ class BendingConfig:
     static_tol: float = param(1e-5, "Newton residual for static equilibria (net force / largest vertex weight)",
                               gt=0, le=1e-3)
     dt: float = param(0.01, "time step of the backward-Euler runs", "s", gt=0, le=0.05)
-    record_every: int = param(2, "log the geometry every k-th time step", ge=1)
+    record_every: int = param(2, "observe the scene runs every k-th step (the steps between "
+                             "observations; the recording draws its own frames, about 200 per run, whatever k is)", ge=1)
 
     def validate(self):
         if (self.finest - 1) % 4:

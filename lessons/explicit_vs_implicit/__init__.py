@@ -46,7 +46,8 @@ class ExplicitImplicitConfig:
     frame_dt: float = param(1 / 60, "stage 3: backward Euler's time step (one video frame)", "s", gt=0, le=0.1)
     frames: int = param(8, "stage 3: frames (of --frame-dt) after the release that every timing run covers", ge=3,
                         le=600)
-    record_every: int = param(10, "log the cloth every k-th step", ge=1)
+    record_every: int = param(10, "observe the scene runs every k-th step (the steps between "
+                             "observations; the recording draws its own frames, about 200 per run, whatever k is)", ge=1)
 
     def validate(self):
         if self.huge <= self.big:

@@ -23,7 +23,8 @@ class RodWavesConfig:
     width: float = param(10.0, "Gaussian pulse width sigma, in node spacings", ge=2, le=100)
     amplitude: float = param(1e-3, "pulse amplitude (displacement)", "m", gt=0, le=0.01)
     cfl_steps: int = param(10_000, "steps a run must survive to count as stable in stage 3", ge=100, le=10**7)
-    record_every: int = param(20, "log the rod geometry every k-th step", ge=1)
+    record_every: int = param(20, "observe the scene runs every k-th step (the steps between "
+                             "observations; the recording draws its own frames, about 200 per run, whatever k is)", ge=1)
 
     def validate(self):
         h = 1.0 / (self.nodes - 1)
