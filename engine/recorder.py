@@ -251,7 +251,7 @@ def _grid_shape(runs: list) -> tuple[int, bool]:
     return (1 if n == 1 else 2 if n <= 6 else 3), False
 
 
-def stage_view(stage: StagePlan, lesson_title: str = "") -> rrb.Container:
+def stage_view(stage: StagePlan) -> rrb.Container:
     """The tab of one stage (see the module docstring)."""
     origin = f"/stage{stage.index}"
     side = [rrb.TextDocumentView(origin=f"{origin}/narrative", name="narrative")]
@@ -293,13 +293,13 @@ def stage_view(stage: StagePlan, lesson_title: str = "") -> rrb.Container:
     return rrb.Horizontal(left, side_panel, column_shares=[3, 1], name=name)
 
 
-def lesson_blueprint(stages: list, active: int | None = None, lesson_title: str = "") -> rrb.Blueprint:
+def lesson_blueprint(stages: list, active: int | None = None) -> rrb.Blueprint:
     """The layout of a recording from its plan (a list of StagePlan): one tab per stage, opening
     on stage ``active`` (default: the first that drew geometry), panels collapsed, the progress
     timeline playing one run in PLAYBACK_SECONDS, looping."""
     if active is None:
         active = next((s.index for s in stages if s.scene_runs), stages[0].index if stages else None)
-    tabs = [stage_view(s, lesson_title) for s in stages]
+    tabs = [stage_view(s) for s in stages]
     active_tab = next((i for i, s in enumerate(stages) if s.index == active), 0)
     return rrb.Blueprint(
         rrb.Tabs(*tabs, active_tab=active_tab) if tabs else rrb.Tabs(),
@@ -318,7 +318,7 @@ class NullRecorder:
     path = None
 
     def __init__(self, *args, **kwargs):
-        self.frame = 0
+        pass
 
     def __enter__(self):
         return self
@@ -419,26 +419,30 @@ class Recorder(NullRecorder):
             self._rec.send_recording_name(title)
         self.default_camera = camera
         self.stages: list[StagePlan] = []
-        self._run: RunPlan | None = None
         self._prefix = ""
         self._stage = ""
         self._closed = False
         self._static_done: set[str] = set()
-        self._frame_tick = -1         # progress tick of the run's last geometry frame
         self._frame_bytes = 0         # bytes logged in the current frame
+        self._outbox: dict = {}       # entity -> kept energy samples not yet sent
+        self._reset_run()
+
+    def _reset_run(self) -> None:
+        """The state of the current run, empty: between runs and before the first."""
+        self._run = None
+        self._frame_tick = -1         # progress tick of the run's last set_time (-1: none yet)
+        self._next_target = None      # the progress tick the run's next frame is meant for
+        self._chunk_ticks = 0.0       # progress ticks between the moments the run can draw
         self._pending: list = []      # energy samples not yet binned: (step, K, W)
-        self._outbox: dict = {}       # entity -> kept samples not yet sent
         self._pending_count = 0
         self._energy_width = None     # steps per energy bin, fixed once the run has run long
-        self._chunk_ticks = 0.0       # progress ticks between the moments the run can draw
-        self._next_target = None
         self._energy_dt = 0.0
         self._energy_first_total = None
 
     # --- structure --------------------------------------------------------------
     def stage(self, index: int, title: str, narrative: str) -> None:
         """Start stage ``index``; its narrative goes to /stage<index>/narrative."""
-        self._end_run()
+        self._end_stage()
         self._stage = f"stage{index}"
         self._prefix = self._stage
         self.stages.append(StagePlan(index, title))
@@ -468,8 +472,6 @@ class Recorder(NullRecorder):
                              if draw_every and dt and self._run.span else 0.0)
         if self.stages:
             self.stages[-1].runs.append(self._run)
-        self._frame_tick = -1
-        self._next_target = None  # the progress tick the run's next frame is meant for
         if self.live:  # show the runs so far, on this stage's tab
             self._send_live_layout()
         return self._prefix
@@ -483,15 +485,15 @@ class Recorder(NullRecorder):
         if self._run is not None:
             self._flush_energies(final=True)
             self._close_frame()
-            if self._run.keys and self.stages:  # the stage's colour keys, one line per run
-                keyed = [r for r in self.stages[-1].runs if r.keys and r.has_geometry]
-                self.markdown(KEYS_DOC, "Colours, each on a scale fixed for the whole run:\n\n" + "\n".join(
-                    f"- **{r.label}**: " + "; ".join(r.keys.values()) for r in keyed))
-        self._run = None
-        self._pending = []
-        self._pending_count = 0
-        self._energy_width = None
-        self._energy_first_total = None
+        self._reset_run()
+
+    def _end_stage(self) -> None:
+        """Finish the current run and write the stage's colour keys, one line per run with any."""
+        self._end_run()
+        keyed = [r for r in self.stages[-1].runs if r.keys and r.has_geometry] if self.stages else []
+        if keyed:
+            self.markdown(KEYS_DOC, "Colours, each on a scale fixed for the whole run:\n\n" + "\n".join(
+                f"- **{r.label}**: " + "; ".join(r.keys.values()) for r in keyed))
 
     def _tick(self, sim_time: float, step: int) -> int:
         run = self._run
@@ -683,7 +685,7 @@ class Recorder(NullRecorder):
         self._rec.send_columns(self._path(entity), indexes=self._columns(np.asarray(steps, dtype=np.int64)),
                                columns=rr.Scalars.columns(scalars=values))
 
-    def energies(self, kinetic, potential, dt: float, first_step: int = 0, t0: float = 0.0) -> None:
+    def energies(self, kinetic, potential, dt: float, first_step: int = 0) -> None:
         """Kinetic and potential energy (J) after steps first_step+1, first_step+2, ...; at most
         ENERGY_SAMPLES per series and run are kept (the lowest and highest of each bin)."""
         kinetic = np.asarray(kinetic, dtype=np.float64)
@@ -776,7 +778,7 @@ class Recorder(NullRecorder):
     # --- layout and lifetime --------------------------------------------------------
     def blueprint(self, active: int | None = None) -> rrb.Blueprint:
         """The viewer layout for what has been recorded so far (see :func:`lesson_blueprint`)."""
-        return lesson_blueprint(self.stages, active, self.title)
+        return lesson_blueprint(self.stages, active)
 
     def close(self, keep: bool = True, active: int | None = None) -> Path | None:
         """Send the layout, flush, finish the file and move it onto the final name (or delete it)."""
@@ -784,7 +786,7 @@ class Recorder(NullRecorder):
             return self.path if keep else None
         self._closed = True
         try:
-            self._end_run()
+            self._end_stage()
             if self.stages:
                 self._rec.send_blueprint(self.blueprint(active), make_active=True, make_default=True)
             try:

@@ -64,7 +64,7 @@ class CallRecorder(NullRecorder):
     def set_time(self, step, sim_time):
         self.now = int(step)
 
-    def energies(self, kinetic, potential, dt, first_step=0, t0=0.0):
+    def energies(self, kinetic, potential, dt, first_step=0):
         k, w = np.asarray(kinetic, float), np.asarray(potential, float)
         self.energy_frames += list(first_step + 1 + np.arange(k.size))
         self.energy_values += list(k + w)
