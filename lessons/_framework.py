@@ -158,7 +158,10 @@ class Experiment:
 
     ``id`` (required, keyword): a slug unique within the lesson that names the experiment whatever
     the claim's text (which may carry measured numbers or the integrator's name) and whatever
-    options the run had; results and tests find experiments by it."""
+    options the run had; results and tests find experiments by it.
+
+    ``reason`` (optional, keyword): why the claim is expected to fail for the run's parameters
+    (a physical limit the lesson knows of); printed under the stage's table when it does fail."""
 
     claim: str
     theory: float
@@ -167,6 +170,7 @@ class Experiment:
     compare: str = "rel"
     unit: str = ""
     id: str = field(kw_only=True)
+    reason: str = field(default="", kw_only=True)
 
     def __post_init__(self):
         if self.compare not in COMPARISONS:
@@ -394,6 +398,9 @@ def run_lesson(lesson: Lesson, cfg, rec, stages: list[int] | None = None, out=sy
             experiments = [Experiment("stage ran without an unexpected blow-up", 0, exc.step + 1, 0, "<=",
                                       id=f"no-blow-up-stage{index}")]
         print(text_table(experiments), file=out)
+        for e in experiments:
+            if e.reason and not e.passed:
+                print(f"   FAIL {e.id}: {e.reason}", file=out)
         used = _summarise_integrators(ctx.integrators_used)
         if used:
             print(f"   integrators: {used}", file=out)
