@@ -24,12 +24,14 @@ run to run (within an element every triplet goes to a different entry: its verti
 distinct).  The builder never checks its capacity, so :func:`triplet_capacity` is exact.
 """
 
+import numpy as np
 import taichi as ti
 
 from engine.energies.base import stencil_triplets
-from engine.fields import int_array2, scalar_array
+from engine.fields import int_array, int_array2, int_ndarray, scalar_array
 
-__all__ = ["assemble_mass", "assemble_energy", "element_assembler", "triplet_capacity"]
+__all__ = ["assemble_mass", "assemble_energy", "element_assembler", "triplet_capacity", "CSRPattern", "init_rows",
+           "row_assembler", "assemble_rows"]
 
 
 @ti.kernel
@@ -95,3 +97,166 @@ def triplet_capacity(model) -> int:
                 f"({type(e).__name__}): no per-element block layout is known; use solver='pcg'")
         cap += stencil_triplets(e.stencil_size) * e.n_elements
     return cap
+
+
+# --------------------------------------------------------------------------------------------
+# Fixed-pattern assembly into CSR values (the PARDISO direct solver, engine.linalg "pardiso")
+# --------------------------------------------------------------------------------------------
+#
+# The pattern of A' depends only on the model's elements and pins, so it is computed once per
+# model (numpy, set-up) and every solve only writes the values.  Stored: the UPPER triangle
+# (row <= column) in CSR, zero-based, columns sorted within each row (what a symmetric
+# positive-definite PARDISO factorisation reads), vertex by vertex:
+#
+#   row 3i+r:  the diagonal block's entries (3i+r, 3i+s), s >= r, then for each neighbour
+#              j > i of vertex i (increasing j) the three entries (3i+r, 3j+s), s = 0, 1, 2   (P1)
+#
+# A pinned vertex keeps only its diagonal block (the identity); pairs with a pinned vertex are
+# not stored (its rows and columns are eliminated, (L2) of engine.linalg).
+#
+# The values are written by a gather per vertex (a parallel loop over block rows; vertex i's
+# thread alone writes rows 3i..3i+2, no atomics): for every element e incident to i, at slot a,
+# and every slot b whose vertex vb >= i, block H_e,ab is added at (i, vb).  Contributions are
+# listed per row in increasing (element, b) order, so the sums are bitwise reproducible.
+
+class CSRPattern:
+    """The fixed upper-triangle CSR pattern (P1) of a model's system matrix and, per stencil
+    energy, the per-row contribution lists the gather kernels read.  Numpy set-up, once per
+    model; ``indptr``/``indices`` are int32 numpy arrays (``nnz`` entries)."""
+
+    def __init__(self, model):
+        n = int(model.n)
+        free = np.asarray(model.free, dtype=bool)
+        lo_all, hi_all = [], []
+        element_sets = []
+        for e in model.energies:
+            if not e.n_elements:
+                continue
+            if not e.stencil_size or e.block is None:
+                raise NotImplementedError(
+                    f"pardiso cannot assemble the {getattr(e, 'name', type(e).__name__)} energy "
+                    f"({type(e).__name__}): no per-element block layout is known; use solver='pcg'")
+            els = np.asarray(e.elements.to_numpy(), dtype=np.int64)[:e.n_elements]
+            element_sets.append((e, els))
+            k = els.shape[1]
+            for a in range(k):
+                for b in range(a + 1, k):
+                    va, vb = els[:, a], els[:, b]
+                    keep = free[va] & free[vb]
+                    lo_all.append(np.minimum(va, vb)[keep])
+                    hi_all.append(np.maximum(va, vb)[keep])
+        keys = np.unique(np.concatenate(lo_all) * n + np.concatenate(hi_all)) if lo_all else np.zeros(0, np.int64)
+        self.n = n
+        self.keys = keys                                    # sorted: row vertex, then column vertex
+        rows_v, cols_v = keys // n, keys % n
+        nb = np.bincount(rows_v, minlength=n)               # neighbours j > i of each vertex
+        self.block_ptr = np.concatenate([[0], np.cumsum(nb)]).astype(np.int64)
+        r = np.tile(np.arange(3), n)
+        lengths = (3 - r) + 3 * np.repeat(nb, 3)
+        indptr = np.concatenate([[0], np.cumsum(lengths)])
+        if indptr[-1] >= 2 ** 31:
+            raise ValueError(f"the system matrix has {indptr[-1]} nonzeros: too many for 32-bit indices")
+        self.indptr = indptr.astype(np.int32)
+        self.nnz = int(indptr[-1])
+        indices = np.empty(self.nnz, dtype=np.int64)
+        row = np.arange(3 * n)
+        vert = row // 3
+        # diagonal-block entries: row 3i+r holds columns 3i+r .. 3i+2
+        for s in range(3):
+            has = r <= s
+            indices[indptr[:-1][has] + (s - r[has])] = 3 * vert[has] + s
+        # neighbour blocks: entry k of row vertex i at offset (3 - r) + 3 k + s of row 3i+r
+        if len(keys):
+            kk = np.arange(len(keys)) - self.block_ptr[rows_v]       # index among i's neighbours
+            for rr in range(3):
+                start = indptr[3 * rows_v + rr] + (3 - rr) + 3 * kk
+                for s in range(3):
+                    indices[start + s] = 3 * cols_v + s
+        self.indices = indices.astype(np.int32)
+        self.indptr_nd = int_ndarray(self.indptr)
+        self.contributions = {}
+        for e, els in element_sets:
+            self.contributions[id(e)] = self._contributions(els, free)
+
+    def _contributions(self, els: np.ndarray, free: np.ndarray) -> tuple:
+        """(c_ptr (n+1,), c_elem, c_code = a k + b, c_pos: -1 for the diagonal block, else the
+        index of vb among row va's neighbours), i32 ndarrays, sorted by (va, element, b)."""
+        m, k = els.shape
+        e_idx = np.repeat(np.arange(m), k * k)
+        a_idx = np.tile(np.repeat(np.arange(k), k), m)
+        b_idx = np.tile(np.arange(k), m * k)
+        va = els[e_idx, a_idx]
+        vb = els[e_idx, b_idx]
+        keep = free[va] & free[vb] & (vb >= va) & ((vb > va) | (a_idx == b_idx))
+        e_idx, a_idx, b_idx, va, vb = e_idx[keep], a_idx[keep], b_idx[keep], va[keep], vb[keep]
+        order = np.lexsort((b_idx, e_idx, va))
+        e_idx, a_idx, b_idx, va, vb = e_idx[order], a_idx[order], b_idx[order], va[order], vb[order]
+        pos = np.full(len(va), -1, dtype=np.int64)
+        off = vb > va
+        if off.any():
+            where = np.searchsorted(self.keys, va[off] * self.n + vb[off])
+            pos[off] = where - self.block_ptr[va[off]]
+        c_ptr = np.concatenate([[0], np.cumsum(np.bincount(va, minlength=self.n))])
+        return tuple(int_ndarray(arr) for arr in (c_ptr, e_idx, a_idx * k + b_idx, pos))
+
+
+@ti.kernel
+def init_rows(values: scalar_array, indptr: ti.types.ndarray(dtype=ti.i32, ndim=1), mass: scalar_array,
+              inv_mass: scalar_array, a: float):
+    """values = a M on the diagonal of free vertices, 1 on pinned ones, 0 elsewhere (P1)."""
+    for i in range(mass.shape[0]):
+        for idx in range(indptr[3 * i], indptr[3 * i + 3]):
+            values[idx] = 0.0
+        d = a * mass[i]
+        if inv_mass[i] == 0.0:
+            d = 1.0
+        for r in ti.static(range(3)):
+            values[indptr[3 * i + r]] = d
+
+
+_ROW_ASSEMBLERS: dict = {}
+
+
+def row_assembler(k: int, block):
+    """The kernel ``assemble(values, indptr, c_ptr, c_elem, c_code, c_pos, blocks, scale)`` adding
+    scale H_e,ab of every contribution of a k-vertex stencil energy into the CSR values (P1), one
+    block row per thread; generated once per (k, block)."""
+    key = (int(k), block)
+    kernel = _ROW_ASSEMBLERS.get(key)
+    if kernel is not None:
+        return kernel
+
+    @ti.kernel
+    def assemble(values: scalar_array, indptr: ti.types.ndarray(dtype=ti.i32, ndim=1), c_ptr: int_array,
+                 c_elem: int_array, c_code: int_array, c_pos: int_array, blocks: ti.types.ndarray(), scale: float):
+        for i in range(c_ptr.shape[0] - 1):
+            for c in range(c_ptr[i], c_ptr[i + 1]):
+                e = c_elem[c]
+                code = c_code[c]
+                pos = c_pos[c]
+                K = ti.Matrix.zero(float, 3, 3)
+                for ab in ti.static(range(k * k)):
+                    if code == ab:
+                        K = block(blocks, e, ab // k, ab % k)
+                K = scale * K
+                if pos < 0:
+                    for r in ti.static(range(3)):
+                        base = indptr[3 * i + r] - r
+                        for s in ti.static(range(r, 3)):
+                            values[base + s] = values[base + s] + K[r, s]   # one writer per row: no atomics
+                else:
+                    for r in ti.static(range(3)):
+                        base = indptr[3 * i + r] + 3 - r + 3 * pos
+                        for s in ti.static(range(3)):
+                            values[base + s] = values[base + s] + K[r, s]
+
+    _ROW_ASSEMBLERS[key] = assemble
+    return assemble
+
+
+def assemble_rows(pattern: CSRPattern, values, energy, blocks, scale: float) -> None:
+    """values += scale H of ``energy`` from ``blocks`` = energy.hessian_blocks(x, psd) (P1)."""
+    if energy.n_elements:
+        c_ptr, c_elem, c_code, c_pos = pattern.contributions[id(energy)]
+        row_assembler(energy.stencil_size, type(energy).block)(values, pattern.indptr_nd, c_ptr, c_elem, c_code,
+                                                               c_pos, blocks, float(scale))

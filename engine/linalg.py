@@ -23,7 +23,7 @@ The reported residual is the true relative residual over the free rows,
 
     residual = ||S (b - A y)|| / ||S b||         (0 if S b = 0)                           (L3)
 
-Two solvers share one interface (:func:`make_solver`):
+Four names share one interface (:func:`make_solver`):
 
 ``pcg``       preconditioned conjugate gradient in Taichi kernels, matrix-free.  3x3 block-
               Jacobi preconditioner from each energy's add_hessian_diagonal (plus a m_i I).
@@ -58,6 +58,18 @@ Two solvers share one interface (:func:`make_solver`):
               model (cached on the solver), the numbers are factorised on every solve.  The
               residual (L3) is checked with a matrix-free product; up to two steps of
               iterative refinement are taken if it is above the tolerance.
+``pardiso``   direct sparse LL^T with MKL PARDISO (supernodal, nested dissection, multi-threaded;
+              the optional ``fast`` extra: pypardiso + mkl, x86-64).  The UPPER triangle of A is
+              written into a CSR pattern fixed per model (:class:`engine.assembly.CSRPattern`,
+              numpy set-up once) by one gather kernel per energy (a parallel loop over block
+              rows, each row written by one thread: no atomics, bitwise reproducible); the
+              symbolic analysis (ordering, elimination tree) is done once per model and only
+              the numeric factorisation per solve.  Residual check and refinement as cholesky.
+``direct``    pardiso when it can be loaded, cholesky otherwise (the name the benchmark and the
+              explicit-vs-implicit lesson use for "the fastest direct solve installed").
+
+Both direct solvers share :class:`DirectSolver` (the residual check and iterative refinement)
+and report ``last_timings`` (assembly, factorization, solve seconds of the last solve).
 
 A solve that ends above the tolerance (or a failed factorisation, or p.Ap <= 0 in CG) is
 reported (``LinearSolveInfo.converged`` False, ``message``) and callers raise
@@ -65,7 +77,7 @@ reported (``LinearSolveInfo.converged`` False, ``message``) and callers raise
 
 Interface (``x``, ``b``, ``y`` are vec3 ndarrays with one entry per model vertex)::
 
-    solver = make_solver("pcg" | "cholesky", tol=1e-8, max_iter=1000)
+    solver = make_solver("pcg" | "cholesky" | "pardiso" | "direct", tol=1e-8, max_iter=1000)
     info = solver.solve(model, x, b, y, mass_coef=a, hess_coef=c, psd=True, extra=None)
     info.iterations, info.residual, info.converged; info.check()     # raises SolverError
 
@@ -81,22 +93,24 @@ iterations, so it wins for small dt / loose tolerances and loses for large dt.
 """
 
 import math
+import time
 import weakref
 from typing import NamedTuple
 
 import numpy as np
 import taichi as ti
 
-from engine.assembly import assemble_energy, assemble_mass, triplet_capacity
+from engine.assembly import CSRPattern, assemble_energy, assemble_mass, assemble_rows, init_rows, triplet_capacity
 from engine.constants import SERIAL_BELOW
 from engine.fields import (axpy_inplace, float_dtype, free_dot, int_array, int_array2, mat3_array, scalar_array,
                            scratch_vec3, vec3_array, vec3_array2, vec3_ndarray, zero_pinned, zero_vec3)
 from engine.model import Model
 
-__all__ = ["SolverError", "LinearSolveInfo", "LinearSolver", "PCGSolver", "CholeskySolver", "SOLVERS",
+__all__ = ["SolverError", "LinearSolveInfo", "LinearSolver", "PCGSolver", "DirectSolver", "CholeskySolver", "PardisoSolver", "SOLVERS",
+           "pardiso_available",
            "make_solver", "apply_system", "triplet_capacity"]
 
-SOLVERS = ("pcg", "cholesky")
+SOLVERS = ("pcg", "cholesky", "pardiso", "direct")
 
 
 class SolverError(RuntimeError):
@@ -586,18 +600,81 @@ class PCGSolver(LinearSolver):
         return self._info(it, residual, message)
 
 
-class CholeskySolver(LinearSolver):
+class DirectSolver(LinearSolver):
+    """A sparse direct solve of (L1)-(L2), shared by the backends: assemble A' = A/c, factorise,
+    back-substitute, then check the residual (L3) with the matrix-free product and take up to
+    ``refinements`` steps of iterative refinement while it is above the tolerance.  A subclass
+    gives ``_factorize(model, entry, x, a', psd, extra) -> bool`` (False: A' is not positive
+    definite) and ``_backsolve(entry, rhs) -> solution`` (numpy, 3n).  ``last_timings`` holds the
+    last solve's seconds: assembly, factorization, solve (back-substitutions and refinement)."""
+
+    def __init__(self, tol: float = 1e-8, max_iter: int = 1000, refinements: int = 2):
+        super().__init__(tol, max_iter)
+        self.refinements = int(refinements)
+        self.last_timings: dict = {}
+
+    def _setup(self, model: Model) -> dict:
+        entry = self._entry(model)
+        if "q" not in entry:
+            entry["q"] = vec3_ndarray(model.n)
+            entry["free_dofs"] = np.repeat(model.free, 3)
+        return entry
+
+    def _factorize(self, model: Model, entry: dict, x, a_s: float, psd: bool, extra) -> bool:
+        raise NotImplementedError
+
+    def _backsolve(self, entry: dict, rhs: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def solve(self, model: Model, x, b, y, mass_coef: float, hess_coef: float = 1.0,
+              psd: bool = True, extra=None) -> LinearSolveInfo:
+        a, c = self._coefficients(mass_coef, hess_coef)
+        entry = self._setup(model)
+        t0 = time.perf_counter()
+        ok = self._factorize(model, entry, x, a / c, psd, _scaled(extra, c))
+        t1 = time.perf_counter()
+        self.last_timings = {"assembly": entry.pop("_assembly_s", 0.0), "factorization": t1 - t0, "solve": 0.0}
+        self.last_timings["factorization"] -= self.last_timings["assembly"]
+        if not ok:
+            zero_vec3(y)
+            return self._info(1, math.inf, f"{self.name} factorization failed (matrix not positive definite)")
+        free = entry["free_dofs"]
+        rhs = np.asarray(b.to_numpy(), dtype=np.float64).reshape(-1) / c
+        rhs[~free] = 0.0
+        bnorm = float(np.linalg.norm(rhs))
+        if bnorm == 0.0:
+            zero_vec3(y)
+            return self._info(0, 0.0)
+        sol = np.asarray(self._backsolve(entry, rhs), dtype=np.float64).reshape(-1)
+        y.from_numpy(sol.reshape(-1, 3).astype(float_dtype()))
+        plan = _hessian_plan(model, x, psd, _scaled(extra, c))  # blocks at x were computed last
+        q = entry["q"]
+        it = 1
+        while True:
+            _apply_plan(model, plan, a / c, y, q)  # q = A' y
+            res = rhs - q.to_numpy().astype(np.float64).reshape(-1)
+            res[~free] = 0.0
+            residual = float(np.linalg.norm(res)) / bnorm
+            if residual <= self.tol or it > self.refinements or not np.isfinite(residual):
+                break
+            sol = sol + np.asarray(self._backsolve(entry, res), dtype=np.float64).reshape(-1)  # refinement
+            y.from_numpy(sol.reshape(-1, 3).astype(float_dtype()))
+            it += 1
+        self.last_timings["solve"] = time.perf_counter() - t1
+        return self._info(it, residual)
+
+
+class CholeskySolver(DirectSolver):
     """Sparse LL^T (Eigen via ``ti.linalg.SparseSolver``), pattern analysed once per model."""
 
     name = "cholesky"
 
     def __init__(self, tol: float = 1e-8, max_iter: int = 1000, refinements: int = 2):
-        super().__init__(tol, max_iter)
-        self.refinements = int(refinements)
+        super().__init__(tol, max_iter, refinements)
         self.last_assembly_triplets: int | None = None
 
     def _setup(self, model: Model) -> dict:
-        entry = self._entry(model)
+        entry = super()._setup(model)
         if "builder" not in entry:
             cap = triplet_capacity(model)
             N = 3 * model.n
@@ -605,9 +682,6 @@ class CholeskySolver(LinearSolver):
             entry["builder"] = ti.linalg.SparseMatrixBuilder(N, N, max_num_triplets=cap, dtype=ti.f64)
             entry["solver"] = ti.linalg.SparseSolver(dtype=ti.f64, solver_type="LLT")
             entry["analyzed"] = False
-            entry["q"] = vec3_ndarray(model.n)
-            entry["dy"] = vec3_ndarray(model.n)
-            entry["free_dofs"] = np.repeat(model.free, 3)
         return entry
 
     def assemble(self, model: Model, x, mass_coef: float, hess_coef: float = 1.0, psd: bool = True,
@@ -636,48 +710,140 @@ class CholeskySolver(LinearSolver):
                     assemble_energy(B, e, e.hessian_blocks(xx, ps), model.inv_mass_nd, scale)
         return B.build()  # empties the builder; lower triangle of the symmetric A' only
 
-    def solve(self, model: Model, x, b, y, mass_coef: float, hess_coef: float = 1.0,
-              psd: bool = True, extra=None) -> LinearSolveInfo:
-        a, c = self._coefficients(mass_coef, hess_coef)
-        entry = self._setup(model)
-        A = self.assemble(model, x, a, c, psd, extra)
+    def _factorize(self, model, entry, x, a_s, psd, extra) -> bool:
+        t0 = time.perf_counter()
+        A = self.assemble(model, x, a_s, 1.0, psd, extra)
+        entry["_assembly_s"] = time.perf_counter() - t0
         S = entry["solver"]
         if not entry["analyzed"]:
             S.analyze_pattern(A)
             entry["analyzed"] = True
         S.factorize(A)
-        if not S.info():
-            zero_vec3(y)
-            return self._info(1, math.inf, "LLT factorization failed (matrix not positive definite)")
-        free = entry["free_dofs"]
-        rhs = np.asarray(b.to_numpy(), dtype=np.float64).reshape(-1) / c
-        rhs[~free] = 0.0
-        bnorm = float(np.linalg.norm(rhs))
-        if bnorm == 0.0:
-            zero_vec3(y)
-            return self._info(0, 0.0)
-        sol = np.asarray(S.solve(rhs), dtype=np.float64)
-        y.from_numpy(sol.reshape(-1, 3).astype(float_dtype()))
-        plan = _hessian_plan(model, x, psd, _scaled(extra, c))  # blocks at x were computed last
-        q = entry["q"]
-        it = 1
-        while True:
-            _apply_plan(model, plan, a / c, y, q)  # q = A' y
-            res = q.to_numpy().astype(np.float64).reshape(-1)
-            res = rhs - res
-            res[~free] = 0.0
-            residual = float(np.linalg.norm(res)) / bnorm
-            if residual <= self.tol or it > self.refinements or not np.isfinite(residual):
+        return bool(S.info())
+
+    def _backsolve(self, entry, rhs):
+        return entry["solver"].solve(rhs)
+
+
+class _Pardiso:
+    """One MKL PARDISO instance (through pypardiso's ctypes binding) for a fixed CSR pattern:
+    real symmetric positive definite (mtype 2), nested-dissection ordering; the symbolic
+    analysis (phase 11) once, the numeric factorisation (phase 22) per solve, back-substitution
+    (phase 33).  Frees its memory when dropped."""
+
+    def __init__(self, matrix, threads: int):
+        import ctypes
+        import pypardiso
+        self.S = pypardiso.PyPardisoSolver(mtype=2)
+        for i, v in ((1, 1), (2, 2), (8, 0), (10, 8), (13, 0), (24, 0), (27, 0)):
+            self.S.set_iparm(i, v)  # user iparms, METIS ordering, no iterative refinement inside
+        self.S.set_iparm(12, 0)     # CSR (not transposed)
+        for name in ("MKL_Set_Num_Threads", "mkl_set_num_threads"):
+            fn = getattr(self.S.libmkl, name, None)
+            if fn is not None:
+                fn(ctypes.c_int(int(threads)))
                 break
-            sol = sol + np.asarray(S.solve(res), dtype=np.float64)  # iterative refinement
-            y.from_numpy(sol.reshape(-1, 3).astype(float_dtype()))
-            it += 1
-        return self._info(it, residual)
+        self.A = matrix
+        self._zero = np.zeros((matrix.shape[0], 1))
+        self._call(11)
+
+    def _call(self, phase: int, b=None):
+        self.S.set_phase(phase)
+        return self.S._call_pardiso(self.A, self._zero if b is None else np.asfortranarray(b.reshape(-1, 1)))
+
+    def factorize(self) -> bool:
+        import pypardiso
+        try:
+            self._call(22)
+        except pypardiso.pardiso_wrapper.PyPardisoError:
+            return False
+        return True
+
+    def solve(self, rhs):
+        return self._call(33, rhs).reshape(-1)
+
+    def __del__(self):
+        try:
+            self.S.free_memory(everything=True)
+        except Exception:
+            pass
+
+
+def pardiso_available() -> bool:
+    """True when MKL PARDISO can be loaded (the optional ``fast`` extra: pypardiso + mkl)."""
+    global _PARDISO_OK
+    if _PARDISO_OK is None:
+        try:
+            import pypardiso
+            pypardiso.PyPardisoSolver()
+            _PARDISO_OK = True
+        except Exception:
+            _PARDISO_OK = False
+    return _PARDISO_OK
+
+
+_PARDISO_OK: bool | None = None
+
+
+class PardisoSolver(DirectSolver):
+    """Sparse LL^T with MKL PARDISO (supernodal, multi-threaded).  The upper triangle of A' is
+    assembled into a CSR pattern fixed per model (:class:`engine.assembly.CSRPattern`: one gather
+    kernel per energy, a parallel loop over block rows, no atomics, bitwise reproducible), the
+    symbolic analysis is done once per model and only the numeric factorisation per solve."""
+
+    name = "pardiso"
+
+    def __init__(self, tol: float = 1e-8, max_iter: int = 1000, refinements: int = 2):
+        if not pardiso_available():
+            raise ValueError("solver 'pardiso' needs MKL PARDISO, which is not installed: "
+                             "pip install 'elastic-lessons[fast]' (x86-64), or use solver 'direct' or 'cholesky'")
+        super().__init__(tol, max_iter, refinements)
+
+    def _setup(self, model: Model) -> dict:
+        entry = super()._setup(model)
+        if "pattern" not in entry:
+            import scipy.sparse
+            from engine.runtime import current
+            pattern = CSRPattern(model)
+            values = np.zeros(pattern.nnz, dtype=np.float64)
+            N = 3 * model.n
+            A = scipy.sparse.csr_matrix((values, pattern.indices, pattern.indptr), shape=(N, N), copy=False)
+            A.has_sorted_indices = True
+            entry["pattern"], entry["matrix"] = pattern, A
+            entry["values_nd"] = ti.ndarray(dtype=ti.f64, shape=max(pattern.nnz, 1))
+            info = current()
+            entry["_pardiso_threads"] = info.threads if info is not None else 2
+        return entry
+
+    def assemble_values(self, model: Model, entry: dict, x, a_s: float, psd: bool, extra) -> np.ndarray:
+        """Write the values of A' (P1) at x into the pattern's CSR values; returns them (numpy)."""
+        pattern, values = entry["pattern"], entry["values_nd"]
+        init_rows(values, pattern.indptr_nd, model.mass_nd, model.inv_mass_nd, a_s)
+        terms = [(1.0, x, psd)] if extra is None else [(extra[0], extra[1], True), (1.0, x, psd)]
+        for scale, xx, ps in terms:
+            for e in model.energies:
+                if e.n_elements:
+                    assemble_rows(pattern, values, e, e.hessian_blocks(xx, ps), scale)
+        A = entry["matrix"]
+        A.data[:] = values.to_numpy()[:pattern.nnz]
+        return A.data
+
+    def _factorize(self, model, entry, x, a_s, psd, extra) -> bool:
+        t0 = time.perf_counter()
+        self.assemble_values(model, entry, x, a_s, psd, extra)
+        entry["_assembly_s"] = time.perf_counter() - t0
+        if "pardiso" not in entry:
+            entry["pardiso"] = _Pardiso(entry["matrix"], entry["_pardiso_threads"])  # analysis, once
+        return entry["pardiso"].factorize()
+
+    def _backsolve(self, entry, rhs):
+        return entry["pardiso"].solve(rhs)
 
 
 def make_solver(name: str = "pcg", tol: float = 1e-8, max_iter: int = 1000) -> LinearSolver:
-    """A linear solver by name: ``"pcg"`` (matrix-free, Taichi kernels) or ``"cholesky"``
-    (sparse direct, Eigen LL^T).  ``tol``: relative residual (L3); ``max_iter``: CG iteration
+    """A linear solver by name: ``"pcg"`` (matrix-free, Taichi kernels), ``"cholesky"`` (sparse
+    direct, Eigen LL^T), ``"pardiso"`` (sparse direct, MKL PARDISO; ValueError when it is not
+    installed) or ``"direct"`` (pardiso if installed, else cholesky).  ``tol``: relative residual (L3); ``max_iter``: CG iteration
     limit (cholesky ignores it).  ValueError (one line) for an unknown name."""
     if isinstance(name, LinearSolver):
         return name
@@ -685,4 +851,8 @@ def make_solver(name: str = "pcg", tol: float = 1e-8, max_iter: int = 1000) -> L
         return PCGSolver(tol, max_iter)
     if name == "cholesky":
         return CholeskySolver(tol, max_iter)
+    if name == "pardiso":
+        return PardisoSolver(tol, max_iter)
+    if name == "direct":
+        return PardisoSolver(tol, max_iter) if pardiso_available() else CholeskySolver(tol, max_iter)
     raise ValueError(f"unknown linear solver {name!r}; valid names: {', '.join(SOLVERS)}")

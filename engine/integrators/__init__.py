@@ -49,7 +49,7 @@ def make_integrator(name: str, solver: str | None = None, tol: float | None = No
                     newton_iterations: int | None = None, **options):
     """An integrator for ``name`` with options (for ``--integrator/--solver/--tol``).
 
-    "backward-euler": a new :class:`BackwardEuler` (solver "pcg" | "cholesky", default pcg; tol
+    "backward-euler": a new :class:`BackwardEuler` (solver "pcg" | "cholesky" | "pardiso" | "direct", default pcg; tol
     default 1e-8; newton_iterations default 1; further keyword options such as newton_tol,
     line_search, rayleigh_alpha, rayleigh_beta, max_iter are passed on).
     Explicit names: the registered instance; the implicit-only options are ignored.

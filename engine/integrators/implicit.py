@@ -36,7 +36,7 @@ decreases Phi measurably (round-off level, next to the minimum) the iteration st
 
 Newton stops when |grad Phi(x)| <= newton_tol max(|grad Phi(x_n)|, |M g|) (the weight keeps a
 settled hanging body from chasing round-off).  Linear solves go through
-:mod:`engine.linalg` ("pcg" or "cholesky", relative tolerance ``tol``); a linear solve that
+:mod:`engine.linalg` ("pcg", "cholesky", "pardiso" or "direct", relative tolerance ``tol``); a linear solve that
 does not reach ``tol`` raises :class:`engine.linalg.SolverError` and leaves the state as
 it was before the step.  Finally v+ = (x+ - x_n)/dt; pinned vertices keep x and get v = 0.
 
@@ -141,7 +141,8 @@ class BackwardEuler:
     """Backward Euler by Newton on the incremental potential (module docstring).
 
     Parameters
-      solver            "pcg" | "cholesky" (or a LinearSolver instance)
+      solver            "pcg" | "cholesky" | "pardiso" | "direct" (or a LinearSolver instance;
+                        engine.linalg: "direct" is pardiso when MKL is installed, else cholesky)
       tol               relative residual of each linear solve (engine.linalg (L3))
       newton_iterations Newton iterations per step (1 = Baraff & Witkin's linearised step)
       newton_tol        stop when |grad Phi| <= newton_tol max(|grad Phi(x_n)|, |M g|)
@@ -176,7 +177,10 @@ class BackwardEuler:
         for nm, val in (("rayleigh_alpha", rayleigh_alpha), ("rayleigh_beta", rayleigh_beta)):
             if not (math.isfinite(float(val)) and float(val) >= 0.0):
                 raise ParameterError(f"{nm} must be finite and >= 0 (got {val!r})")
-        self.solver = make_solver(solver, tol=tol, max_iter=max_iter)
+        try:
+            self.solver = make_solver(solver, tol=tol, max_iter=max_iter)
+        except ValueError as exc:  # e.g. 'pardiso' without MKL installed: one line, names the option
+            raise ParameterError(f"--solver {solver}: {exc}") from None
         self.tol = self.solver.tol
         self.newton_iterations = newton_iterations
         self.newton_tol = newton_tol
