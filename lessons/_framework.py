@@ -105,7 +105,7 @@ def check_interrupt() -> None:
 # -------------------------------------------------------------------------- stepping
 
 INTEGRATOR_CHOICES = ("default", "forward-euler", "symplectic-euler", "velocity-verlet", "backward-euler")
-SOLVER_CHOICES = ("default", "pcg", "cholesky")
+SOLVER_CHOICES = ("default", "pcg", "cholesky", "pardiso", "direct")
 
 
 @dataclass
