@@ -27,12 +27,15 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg as sla
 
+import taichi as ti
+
 from engine import mesh as meshes
 from engine.constants import G
 from engine.energies.bending import BendingEnergy
-from engine.errors import ParameterError
+from engine.errors import BlowUpError, ParameterError
 from engine.energies.axial import axial_energy_kernel, axial_forces_kernel
-from engine.fields import scalar_ndarray
+from engine.fields import float_dtype, scalar_ndarray
+from engine.runtime import RuntimeConfigError
 from engine.model import Model
 from engine.stability import lambda_max_from_rows
 
@@ -68,6 +71,71 @@ def cloth(n: int, size: float = 1.0, E: float = 1e3, rho: float = 0.1, B: float 
         bending = model.add_energy(BendingEnergy.from_mesh(m3, B, variant))
     return Cloth(m3, model, model.springs, bending)
 
+
+
+# ------------------------------------------------------------------ the rod's launches
+
+@ti.kernel
+def _serial_count(n: ti.i32) -> ti.i32:
+    """Counts n iterations of one serial loop (the probe of :func:`serial_loop_limit`)."""
+    c = 0
+    ti.loop_config(serialize=True)
+    for _ in range(1):
+        for i in range(n):
+            c += 1
+    return c
+
+
+_PROBE = 1 << 22
+_loop_limit: dict = {}
+
+
+def backend_name() -> str:
+    """The backend Taichi actually runs on: cpu, cuda or vulkan (TI_ARCH can override what
+    engine.runtime.init was asked for)."""
+    from taichi.lang import impl
+    name = ti._lib.core.arch_name(impl.current_cfg().arch)
+    return name if name in ("cuda", "vulkan") else "cpu"
+
+
+def serial_loop_limit() -> int | None:
+    """The most loop iterations one invocation of a kernel runs on this backend (None: no limit).
+
+    Mesa's software Vulkan driver (lavapipe, llvmpipe) ends every loop of a shader once the
+    shader has run 65535 loop iterations in all, a guard against endless shaders that raises no
+    error: a serial kernel that loops longer stops part-way and returns what it has. The rod's
+    many-steps kernel is such a loop (about 5 passes over the nodes per step), so there a run
+    of 1001 nodes stopped after 16 steps of each launch and the pulses moved at 0.8 c. CPU
+    backends have no such cut-off; the count of a 4M-iteration serial loop tells, once per
+    process."""
+    arch = backend_name()
+    if arch == "cpu":
+        return None
+    if arch not in _loop_limit:
+        count = int(_serial_count(_PROBE))
+        _loop_limit[arch] = None if count >= _PROBE else count
+    return _loop_limit[arch]
+
+
+# Loop iterations of one step of engine.integrators.kernels.axial_steps, per node: velocity
+# Verlet (kick-drift, forces, kick) and backward Euler (Thomas: set-up and elimination,
+# substitution, drift) make three passes over the nodes, the others two; the energies of the
+# step two more. Velocity Verlet also makes one pass before the first step.
+_PASSES_PER_STEP = 5
+_LIMIT_MARGIN = 0.9  # of the probed limit: the driver's count also includes loop entries
+
+
+def rod_max_nodes() -> int | None:
+    """The most nodes a :class:`Rod` can be stepped with on this backend (None: any number):
+    one step, and velocity Verlet's first pass, must fit in :func:`serial_loop_limit`."""
+    limit = serial_loop_limit()
+    if limit is None:
+        return None
+    return int((_LIMIT_MARGIN * limit - 2) // (_PASSES_PER_STEP + 1))
+
+
+def _largest_float() -> float:
+    return float(np.finfo(float_dtype()).max)
 
 
 class RodState:
@@ -208,6 +276,7 @@ class Rod:
     # --- kernels ---------------------------------------------------------------------
     def energy(self, x) -> float:
         """W(x) of (R1); x: positions along the axis (numpy) or a state's ``x``."""
+        self._steps_per_launch()  # its serial sum must fit in the backend's loop limit, as a step must
         return float(axial_energy_kernel(self._nd(x), self._h, self._E))
 
     def forces(self, x) -> np.ndarray:
@@ -236,7 +305,12 @@ class Rod:
         """Advance ``n_steps`` steps of ``method`` in one launch (engine.integrators.kernels.axial_steps);
         returns (kinetic, potential) arrays, one entry per step. A step whose total energy is not finite
         or exceeds ``energy_bound`` raises the monitor's BlowUpError naming that step (``step_offset`` +
-        index), with the energies up to it."""
+        index), with the energies up to it. The state stays at that step.
+
+        On a backend whose kernels stop loops after :func:`serial_loop_limit` iterations (software
+        Vulkan) the steps are split over as many launches as keep each one below it (the same
+        steps: velocity Verlet's a(x) at a launch's start is the one its last step computed); a rod
+        too long for one step there is refused (RuntimeConfigError)."""
         from engine.integrators import kernels
         from engine.integrators.monitor import Monitor
 
@@ -247,9 +321,44 @@ class Rod:
         n_steps = int(n_steps)
         if n_steps <= 0:
             return np.zeros(0), np.zeros(0)
+        per_launch = self._steps_per_launch()
         monitor = Monitor(method, dt, energy_bound, dt_stable=self.stable_dt)
-        kin, pot = kernels.energy_buffers(n_steps)
+        # The kernel stops at the first step whose K + W is not <= bound. Without a bound (inf) an
+        # energy that has overflowed to +inf passes that test (inf <= inf), and the kernel's NaN test
+        # does not catch it either; the rod is linear, so its positions stay finite while K or W
+        # overflow, and a run at nu = 1.0001 ran all its steps to displacements of 1e236 m. The
+        # largest finite number of the precision as the bound makes every non-finite total a blow-up.
+        bound = min(monitor.bound, _largest_float())
         a, Cp, Dp = self._work
-        done = kernels.axial_steps(state.x, state.v, a, self._h, self._E, self._m, self._inv_m, float(dt), n_steps,
-                                   kin, pot, monitor.bound, Cp, Dp, kernels.METHODS[method])
-        return kernels.collect(kin, pot, done, n_steps, state, float(dt), monitor, step_offset)
+        parts, done = [], 0
+        while done < n_steps:
+            k = min(n_steps - done, per_launch)
+            kin, pot = kernels.energy_buffers(k)
+            stop = kernels.axial_steps(state.x, state.v, a, self._h, self._E, self._m, self._inv_m, float(dt), k,
+                                       kin, pot, bound, Cp, Dp, kernels.METHODS[method])
+            try:
+                with np.errstate(over="ignore"):  # K + W of a blown-up step may overflow
+                    parts.append(kernels.collect(kin, pot, stop, k, state, float(dt), monitor,
+                                                 step_offset + done))
+            except BlowUpError as exc:
+                if parts:  # the energies of the earlier launches too, up to the bad step
+                    exc.kinetic = np.concatenate([p[0] for p in parts] + [exc.kinetic])
+                    exc.potential = np.concatenate([p[1] for p in parts] + [exc.potential])
+                raise
+            done += k
+        if len(parts) == 1:
+            return parts[0]
+        return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
+
+    def _steps_per_launch(self) -> int:
+        """Steps one launch of the many-steps kernel may take on this backend (see run)."""
+        limit = serial_loop_limit()
+        if limit is None:
+            return 1 << 62
+        most = rod_max_nodes()
+        if self.n > most:
+            raise RuntimeConfigError(
+                f"a rod of {self.n} nodes cannot be stepped on this {backend_name()} device: it stops every kernel "
+                f"loop after {limit} iterations and one step needs about {_PASSES_PER_STEP * self.n}; use at most "
+                f"{most} nodes or --arch cpu")
+        return max(1, int((_LIMIT_MARGIN * limit - self.n) // (_PASSES_PER_STEP * self.n + 2)))
