@@ -13,8 +13,9 @@ Cloth (:class:`NumpyCloth`), the scene of :func:`engine.scenes.cloth`:
       (M/dt^2 + H_psd(x_n)) dx = f(x_n) + M g + M v_n/dt,     x+ = x_n + dx,  v+ = dx/dt
 
   with H_psd the PSD-projected spring blocks (S4) and the Gauss-Newton hinge blocks
-  k_e g_a g_b^T (g = grad theta), assembled with ``scipy.sparse`` (COO -> CSR, pinned
-  degrees of freedom dropped) and solved by ``scipy.sparse.linalg.cg`` with a (scalar) Jacobi
+  k_e g_a g_b^T (g = grad theta), assembled as a careful user would: the CSR pattern and the map
+  from element blocks to it computed once (pinned degrees of freedom dropped), then one
+  ``np.bincount`` per step and solved by ``scipy.sparse.linalg.cg`` with a (scalar) Jacobi
   preconditioner to the relative residual ``tol`` (||b - A dx|| <= tol ||b||, the engine's (L3)).
 
 Rod (:class:`NumpyRod`), the rod of :class:`engine.rod.Rod`: f_i = E_i s_i - E_{i-1} s_{i-1};
@@ -56,6 +57,7 @@ class NumpyCloth:
         self.dof[free_dof] = np.arange(int(free_dof.sum()))
         self.n_free_dofs = int(free_dof.sum())
         self.last_assembly_s = self.last_solve_s = 0.0
+        self._patterns = {}
         self.last_iterations = 0
         self.last_residual = 0.0
 
@@ -107,9 +109,9 @@ class NumpyCloth:
         return x, v
 
     # -- implicit --------------------------------------------------------------------------------
-    def hessian_psd(self, x):
-        """The PSD Hessian H_psd(x) (springs (S4) + Gauss-Newton hinges) over the free degrees of
-        freedom, as a scipy CSR matrix (COO triplets summed)."""
+    def hessian_blocks(self, x):
+        """The PSD element blocks (springs (S4) + Gauss-Newton hinges) as (nb, 3, 3) with their
+        row and column vertices, in a fixed order (the pattern does not depend on x)."""
         d = x[self.i] - x[self.j]
         l = np.sqrt(np.einsum("ij,ij->i", d, d))
         u = d / l[:, None]
@@ -130,25 +132,69 @@ class NumpyCloth:
                     blocks.append(Hb[:, a, b])
                     rows_v.append(self.H[:, a])
                     cols_v.append(self.H[:, b])
-        B = np.concatenate(blocks)                                                  # (nb, 3, 3)
-        rv = np.concatenate(rows_v)
-        cv = np.concatenate(cols_v)
-        a3 = np.arange(3)
-        shape = (len(B), 3, 3)
-        r = np.broadcast_to(self.dof[3 * rv[:, None, None] + a3[None, :, None]], shape)  # row dof of B[., a, b]
-        c = np.broadcast_to(self.dof[3 * cv[:, None, None] + a3[None, None, :]], shape)  # column dof
-        keep = (r >= 0) & (c >= 0)
-        nf = self.n_free_dofs
-        return scipy.sparse.csr_matrix((B[keep], (r[keep], c[keep])), shape=(nf, nf))
+        return np.concatenate(blocks), np.concatenate(rows_v), np.concatenate(cols_v)
+
+    def _pattern(self, rv, cv, upper: bool):
+        """The CSR pattern of the free-dof matrix (full, or its upper triangle) and the map from
+        each kept block entry to its CSR position: computed once (the COO -> CSR sort a careful
+        user does once, not every step)."""
+        key = "upper" if upper else "full"
+        if key not in self._patterns:
+            a3 = np.arange(3)
+            r = self.dof[3 * rv[:, None, None] + a3[None, :, None]]
+            c = self.dof[3 * cv[:, None, None] + a3[None, None, :]]
+            r, c = np.broadcast_arrays(r, c)
+            keep = (r >= 0) & (c >= 0) & ((c >= r) if upper else True)
+            nf = self.n_free_dofs
+            lin = r[keep].astype(np.int64) * nf + c[keep]
+            uniq, pos = np.unique(lin, return_inverse=True)
+            rows = uniq // nf
+            indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=nf))]).astype(np.int32)
+            cols = (uniq % nf).astype(np.int32)
+            diag_pos = np.searchsorted(uniq, np.arange(nf, dtype=np.int64) * (nf + 1))
+            if not np.array_equal(uniq[diag_pos], np.arange(nf, dtype=np.int64) * (nf + 1)):
+                raise ValueError("a free vertex with no element: its diagonal is not in the pattern")
+            self._patterns[key] = (keep, pos, indptr, cols, len(uniq), diag_pos)
+        return self._patterns[key]
+
+    def system_matrix(self, x, diag, upper: bool = False):
+        """H_psd(x) + diag(diag) over the free degrees of freedom as scipy CSR (the full matrix,
+        or its upper triangle), assembled into the precomputed pattern with one ``np.bincount``."""
+        B, rv, cv = self.hessian_blocks(x)
+        keep, pos, indptr, indices, nnz, diag_pos = self._pattern(rv, cv, upper)
+        data = np.bincount(pos, weights=B[keep], minlength=nnz)
+        data[diag_pos] += diag
+        A = scipy.sparse.csr_matrix((data, indices, indptr), shape=(self.n_free_dofs,) * 2)
+        A.has_sorted_indices = True
+        return A
+
+    def hessian_psd(self, x):
+        """The PSD Hessian H_psd(x) over the free degrees of freedom, as a scipy CSR matrix."""
+        return self.system_matrix(x, 0.0)
+
+    def implicit_system(self, x, v, dt, upper: bool = False):
+        """(A, b) of one Baraff-Witkin step: A = M/dt^2 + H_psd(x), b = f(x) + M g + M v/dt (free dofs)."""
+        free = ~self.pinned
+        m3 = np.repeat(self.mass[free], 3)
+        A = self.system_matrix(x, m3 / (dt * dt), upper)
+        b = (self.forces(x) + self.mass[:, None] * v / dt)[free].reshape(-1)
+        return A, b
+
+    def apply_step(self, x, v, y, dt):
+        """x += dx, v = dx/dt from the free-dof solution y (pinned: dx = 0, v = 0)."""
+        free = ~self.pinned
+        dx = np.zeros((self.n, 3))
+        dx[free] = y.reshape(-1, 3)
+        x += dx
+        v[...] = dx / dt
+        v[~free] = 0.0
+        return x, v
 
     def backward_euler(self, x, v, dt, tol=1e-5, maxiter=100000):
         """One Baraff-Witkin step in place (x, v numpy (n, 3)); returns (x, v).  Records
         ``last_assembly_s``, ``last_solve_s``, ``last_iterations`` and ``last_residual``."""
         t0 = time.perf_counter()
-        free = ~self.pinned
-        m3 = np.repeat(self.mass[free], 3)
-        A = self.hessian_psd(x) + scipy.sparse.diags(m3 / (dt * dt))
-        b = (self.forces(x) + self.mass[:, None] * v / dt)[free].reshape(-1)
+        A, b = self.implicit_system(x, v, dt)
         Pinv = scipy.sparse.diags(1.0 / A.diagonal())
         t1 = time.perf_counter()
         count = [0]
@@ -159,11 +205,7 @@ class NumpyCloth:
         t2 = time.perf_counter()
         if info != 0:
             raise RuntimeError(f"scipy cg did not converge (info={info}) after {count[0]} iterations")
-        dx = np.zeros((self.n, 3))
-        dx[free] = y.reshape(-1, 3)
-        x += dx
-        v[...] = dx / dt
-        v[~free] = 0.0
+        self.apply_step(x, v, y, dt)
         self.last_assembly_s, self.last_solve_s = t1 - t0, t2 - t1
         self.last_iterations = count[0]
         nb = np.linalg.norm(b)

@@ -30,20 +30,25 @@ ROD_IMPLICIT_NU = 10.0                # rod backward-Euler dt = 10 h/c (10x the 
 # per profile: sizes per configuration ("t2-f64", "t1-f64", "t2-f32"), time budget per benchmark
 PROFILES = {
     "smoke": dict(budget=0.0, max_rounds=1, sizes={
-        "*": dict(cloth=[16], implicit=[16], rod=[1000])}),
+        "*": dict(cloth=[16], implicit=[16], rod=[1000], sequence=[16])}),
     "quick": dict(budget=0.25, max_rounds=40, sizes={
-        "t2-f64": dict(cloth=[32, 64, 128], implicit=[32, 64, 128], rod=[1000, 10000]),
-        "t1-f64": dict(cloth=[64, 128], implicit=[], rod=[1000, 10000]),
-        "t2-f32": dict(cloth=[64, 128], implicit=[64], rod=[10000]),
+        "t2-f64": dict(cloth=[32, 64, 128], implicit=[32, 64, 128], rod=[1000, 10000], sequence=[64]),
+        "t1-f64": dict(cloth=[64, 128], implicit=[], rod=[1000, 10000], sequence=[]),
+        "t2-f32": dict(cloth=[64, 128], implicit=[64], rod=[10000], sequence=[]),
     }),
     "full": dict(budget=0.6, max_rounds=100, sizes={
-        "t2-f64": dict(cloth=[32, 64, 128, 256], implicit=[32, 64, 128, 256], rod=[1000, 10000, 100000]),
-        "t1-f64": dict(cloth=[32, 64, 128, 256], implicit=[32, 64, 128], rod=[1000, 10000, 100000]),
-        "t2-f32": dict(cloth=[32, 64, 128, 256], implicit=[32, 64, 128], rod=[1000, 10000, 100000]),
+        "t2-f64": dict(cloth=[32, 64, 128, 256], implicit=[32, 64, 128, 256], rod=[1000, 10000, 100000],
+                       sequence=[64, 128]),
+        "t1-f64": dict(cloth=[32, 64, 128, 256], implicit=[32, 64, 128], rod=[1000, 10000, 100000], sequence=[]),
+        "t2-f32": dict(cloth=[32, 64, 128, 256], implicit=[32, 64, 128], rod=[1000, 10000, 100000], sequence=[]),
     }),
 }
 # the scipy baseline's largest cloth: at 256^2 one baseline step takes minutes (8x the 128^2 one)
 SCIPY_MAX_SIDE = {"smoke": 16, "quick": 128, "full": 128}
+# the largest cloth each sparse peer is timed on (bench/peers/sparse.py): above it one step takes
+# tens of seconds (the iterative ones need ~side iterations; cholespy's CHOLMOD is simplicial)
+PEER_MAX_SIDE = {p: {"scipy-cg": SCIPY_MAX_SIDE[p], "cholmod": min(SCIPY_MAX_SIDE[p], 128)}
+                 for p in SCIPY_MAX_SIDE}
 
 
 def config_name() -> str:
@@ -71,7 +76,7 @@ def profile() -> str:
 def sizes(kind: str) -> list:
     """Sizes of one kind ("cloth", "implicit", "rod") for this profile and configuration."""
     env = os.environ.get({"cloth": "ELASTIC_BENCH_CLOTH", "implicit": "ELASTIC_BENCH_IMPLICIT",
-                          "rod": "ELASTIC_BENCH_ROD"}[kind], "").strip()
+                          "rod": "ELASTIC_BENCH_ROD", "sequence": "ELASTIC_BENCH_SEQUENCE"}[kind], "").strip()
     if env:
         return [int(s) for s in env.split(",") if s.strip()]
     table = PROFILES[profile()]["sizes"]
@@ -131,15 +136,16 @@ def rod_scene(nodes: int):
     return _rods[nodes]
 
 
-def backward_euler_for(model, state_reset, dt, solver, fp):
+def backward_euler_for(model, state_reset, dt, solver, fp, tol=None):
     """A BackwardEuler (one Newton iteration, no line search) at the benchmark tolerance: 1e-5 in
     f64; in f32 the first tolerance of F32_TOL_FALLBACK that one step from the reset state reaches
     (f32 round-off puts a floor of ~1e-5..1e-4 under the relative residual).  Returns
     (integrator, tol, tolerances that failed); integrator None if none was reached."""
     from engine.integrators import BackwardEuler, SolverError
     if fp == 64:
-        return BackwardEuler(solver=solver, tol=IMPLICIT_TOL[64], newton_iterations=1, line_search=False,
-                             max_iter=100000), IMPLICIT_TOL[64], []
+        tol = IMPLICIT_TOL[64] if tol is None else float(tol)
+        return BackwardEuler(solver=solver, tol=tol, newton_iterations=1, line_search=False,
+                             max_iter=100000), tol, []
     failed = []
     for tol in F32_TOL_FALLBACK:
         be = BackwardEuler(solver=solver, tol=tol, newton_iterations=1, line_search=False, max_iter=100000)

@@ -6,7 +6,8 @@ bench/test_bench_*.py):
 * the numpy baseline and the engine agree on forces and on explicit steps;
 * the force-kernel variants (atomics, serialized scatter) agree with the engine's gathers;
 * the numpy + scipy backward-Euler step agrees with the engine's (PCG and Cholesky) on the same
-  input, and its assembled matrix with the engine's PSD Hessian;
+  input, and its assembled matrix with the engine's PSD Hessian (the precomputed-pattern assembly
+  with a fresh COO one); every sparse peer (bench/peers/sparse.py) solves the engine's system;
 * the rod baselines agree with engine.rod, and the rod-as-Model backward Euler with the rod's;
 * the headline's accuracy-matched dt and crossover helpers, the traffic model, and the streaming
   copy kernel do what they say.
@@ -133,6 +134,64 @@ def test_scipy_assembly_equals_engine_psd_hessian():
     free = np.repeat(c.model.free, 3)
     ref = ref[np.ix_(free, free)]
     assert np.max(np.abs(H - ref)) <= 1e-10 * np.max(np.abs(ref))
+
+
+def test_precomputed_pattern_assembly_equals_a_fresh_coo_assembly():
+    """The baseline's assembly into a pattern computed once (one np.bincount per step) is the
+    COO -> CSR matrix summed afresh, on two different states (the pattern does not depend on x),
+    and its upper triangle is the triangle of the same matrix."""
+    import scipy.sparse
+    c = cloth(8, E=1e3, rho=0.1, B=1e-3)
+    base = NumpyCloth(c.model, c.springs, c.bending)
+    for seed in (1, 2):
+        x = _deformed(c, seed=seed, amp=0.02)
+        B, rv, cv = base.hessian_blocks(x)
+        a3 = np.arange(3)
+        r, cc = np.broadcast_arrays(base.dof[3 * rv[:, None, None] + a3[None, :, None]],
+                                    base.dof[3 * cv[:, None, None] + a3[None, None, :]])
+        keep = (r >= 0) & (cc >= 0)
+        nf = base.n_free_dofs
+        ref = scipy.sparse.coo_matrix((B[keep], (r[keep], cc[keep])), shape=(nf, nf)).toarray()
+        assert np.max(np.abs(base.hessian_psd(x).toarray() - ref)) <= 1e-13 * np.abs(ref).max()
+        d = np.linspace(1.0, 2.0, nf)
+        U = base.system_matrix(x, d, upper=True).toarray()
+        assert np.max(np.abs(U - np.triu(ref + np.diag(d)))) <= 1e-13 * np.abs(ref).max()
+
+
+@pytest.mark.parametrize("name", ["scipy-cg", "pyamg-cg", "pardiso", "pardiso-spsolve", "cholmod"])
+def test_sparse_peers_solve_the_engines_system(name):
+    """Each implicit contender (bench/peers/sparse.py) solves the engine's backward-Euler system:
+    its matrix times random vectors equals engine.linalg.apply_system (relative 1e-12), and its
+    step equals the engine's direct step to the tolerance it was given."""
+    from bench.peers import sparse as peers
+    from engine.linalg import apply_system
+    reason = peers.available(name)
+    if reason:
+        pytest.skip(reason)
+    c = cloth(10, E=1e3, rho=0.1, B=1e-3)
+    x0, v0 = config.cloth_start_state(c)
+    dt = 1.0 / 60.0
+    base = NumpyCloth(c.model, c.springs, c.bending)
+    tol = 1e-10
+    peer = peers.SparsePeer(name, base, tol=tol)
+    A, _ = peer.system(x0, v0, dt)
+    A = peer.full_matrix(A)
+    free = np.repeat(c.model.free, 3)
+    rng = np.random.default_rng(5)
+    for _ in range(2):
+        p = rng.standard_normal((c.model.n, 3)) * c.model.free[:, None]
+        q = vec3_ndarray(c.model.n)
+        apply_system(c.model, vec3_ndarray(c.model.n, x0), vec3_ndarray(c.model.n, p), q, 1.0 / dt ** 2)
+        ref = q.to_numpy().reshape(-1)[free]
+        assert np.max(np.abs(A @ p.reshape(-1)[free] - ref)) <= 1e-12 * np.abs(ref).max()
+    x, v = x0.copy(), v0.copy()
+    peer.step(x, v, dt)
+    assert peer.last["residual"] <= tol
+    st = c.model.make_state(x0, v0)
+    BackwardEuler(solver="cholesky", tol=1e-12, newton_iterations=1, line_search=False).advance(c.model, st, dt)
+    moved = np.max(np.abs(st.numpy().x - x0))
+    assert moved > 1e-3
+    assert np.max(np.abs(x - st.numpy().x)) <= 1e-6 * moved
 
 
 @pytest.mark.parametrize("solver", ["pcg", "cholesky"])
