@@ -11,7 +11,7 @@ import numpy as np
 from engine.errors import BlowUpError
 from engine.integrators.explicit import run_many_steps
 from engine.integrators.monitor import Monitor
-from engine.integrators.loop import model_stepper, run
+from engine.integrators.loop import Progress, model_stepper, run
 from engine.stability import stable_dt_estimate, substeps_for
 
 from ._framework import check_interrupt
@@ -79,8 +79,9 @@ def recorded_run(ctx, name: str, dt: float, n_steps: int, every: int, advance, s
     steps, ``observe(step, state)`` after every chunk (and at 0), the run's energies sent to the
     recorder as they come, the geometry drawn by ``log(rec, state)`` at the frames the recorder wants
     (the chunks are cut finer when it wants more frames than ``every`` gives; the measurements are
-    taken at the same steps either way), progress when it ends, and a blow-up drawn at its step,
-    marked in the recording and re-raised."""
+    taken at the same steps either way), a progress bar while it runs (on a terminal, for runs of more
+    than a few seconds: :func:`progress_bar`), its steps and rate when it ends, and a blow-up drawn at
+    its step, marked in the recording and re-raised."""
     rec = ctx.rec
     draw_every = _divisor_at_most(every, rec.frame_spacing(n_steps)) if log is not None and rec.enabled else None
     rec.run(name, view, n_steps=n_steps, dt=dt, draw_every=draw_every)
@@ -103,11 +104,20 @@ def recorded_run(ctx, name: str, dt: float, n_steps: int, every: int, advance, s
     on_frame = (lambda step: observe(step, state)) if observe is not None else None
     with ctx.timed(name, n_steps):
         try:
-            return run(advance, n_steps, every, on_energies, on_frame, check_interrupt, draw, draw_every)
+            return run(advance, n_steps, every, on_energies, on_frame, check_interrupt, draw, draw_every,
+                       progress=progress_bar(ctx, name, n_steps))
         except BlowUpError as exc:
             rec.set_time(exc.step + 1, (exc.step + 1) * dt)
             rec.mark(str(exc), level="ERROR")
             raise
+
+
+def progress_bar(ctx, name: str, n_steps: int) -> Progress | None:
+    """The run's progress bar on the stage's progress stream (a terminal only; none with --quiet):
+    engine.integrators.loop.Progress, labelled like the stage's progress lines."""
+    if getattr(ctx, "_quiet", True):
+        return None
+    return Progress(f"    {name}", n_steps, stream=getattr(ctx, "_stream", None))
 
 
 def _divisor_at_most(n: int, limit: int) -> int:

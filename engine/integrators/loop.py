@@ -10,6 +10,10 @@ finite or above the monitor's bound stops the run at that step with the monitor'
 """
 from __future__ import annotations
 
+import shutil
+import sys
+import time
+
 import numpy as np
 
 from engine import diagnostics
@@ -69,8 +73,55 @@ def model_stepper(model, state, dt: float, integrator, monitor: Monitor, n_total
     return advance
 
 
+PROGRESS_AFTER_S = 0.5    # a bar is considered once a run has taken this long ...
+PROGRESS_EXPECTED_S = 3.0  # ... and is expected to take at least this long in all
+PROGRESS_INTERVAL_S = 0.25  # the bar is redrawn at most this often
+
+
+class Progress:
+    """A progress bar on stderr (tqdm: steps done, rate, estimated time left) for one run of the
+    loop, shown only when stderr is a terminal and the run, judged from its rate so far, is
+    expected to take more than PROGRESS_EXPECTED_S; redrawn at most every PROGRESS_INTERVAL_S and
+    cleared when the run ends (also on a blow-up or an interrupt), before anything reports it.
+    It only watches the loop: the steps, their order and every result are the same with or
+    without it."""
+
+    def __init__(self, label: str, n_steps: int, stream=None):
+        self.label, self.n_steps = label, int(n_steps)
+        self.stream = sys.stderr if stream is None else stream
+        try:
+            self.enabled = bool(self.stream.isatty())
+        except (AttributeError, ValueError, OSError):  # no stream, or a closed one
+            self.enabled = False
+        self.t0 = time.perf_counter()
+        self.bar = None
+
+    def update(self, done: int) -> None:
+        if not self.enabled or done >= self.n_steps:
+            return
+        if self.bar is None:
+            elapsed = time.perf_counter() - self.t0
+            if elapsed < PROGRESS_AFTER_S or done <= 0 or elapsed * self.n_steps / done < PROGRESS_EXPECTED_S:
+                return
+            import tqdm as _tqdm
+            _tqdm.tqdm.monitor_interval = 0  # no monitor thread: the bar is redrawn from update() only
+            tqdm = _tqdm.tqdm
+            size = shutil.get_terminal_size()  # (80, 24) where the terminal does not say (a 0 x 0 pty)
+            self.bar = tqdm(total=self.n_steps, initial=0, desc=self.label, unit=" steps", unit_scale=True,
+                            file=self.stream, leave=False, ncols=size.columns, nrows=size.lines,
+                            mininterval=PROGRESS_INTERVAL_S, miniters=1, smoothing=0.1, delay=1e-9)
+            # the rate and the time left count from the run's start (tqdm's clock is time.time)
+            self.bar.start_t = self.bar.last_print_t = time.time() - (time.perf_counter() - self.t0)
+        self.bar.update(done - self.bar.n)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()  # leave=False: the line is cleared
+            self.bar = None
+
+
 def run(advance, n_steps: int, every: int, on_energies=None, on_frame=None, check_interrupt=None,
-        on_draw=None, draw_every: int | None = None):
+        on_draw=None, draw_every: int | None = None, progress: str | None = None):
     """Advance ``n_steps`` steps in chunks of ``every`` (the last may be shorter).
 
     ``on_frame(step)`` is called at step 0 and after every chunk (to measure the state);
@@ -81,7 +132,18 @@ def run(advance, n_steps: int, every: int, on_energies=None, on_frame=None, chec
     handed out, ``on_frame`` and ``on_draw(step, True)`` are called at the bad step (the True: the
     state there must be drawn whatever the frame spacing), and the error is re-raised
     with ``steps``/``kinetic``/``potential`` of the whole run so far. Returns (steps, kinetic,
-    potential) of the whole run."""
+    potential) of the whole run.
+
+    ``progress``: the run's :class:`Progress` bar, or a label for one on stderr (None: no bar)."""
+    bar = Progress(progress, n_steps) if isinstance(progress, str) else progress
+    try:
+        return _run(advance, n_steps, every, on_energies, on_frame, check_interrupt, on_draw, draw_every, bar)
+    finally:
+        if bar is not None:
+            bar.close()
+
+
+def _run(advance, n_steps, every, on_energies, on_frame, check_interrupt, on_draw, draw_every, bar):
     all_s, all_k, all_w = [], [], []
     n_steps = int(n_steps)
     every = max(int(every), 1)
@@ -123,6 +185,8 @@ def run(advance, n_steps: int, every: int, on_energies=None, on_frame=None, chec
         if on_energies is not None and len(K):
             on_energies(np.asarray(steps), np.asarray(K), np.asarray(W))
         done += chunk
+        if bar is not None:
+            bar.update(done)
         if on_draw is not None:
             on_draw(done)
         if on_frame is not None and (done % every == 0 or done == n_steps):
