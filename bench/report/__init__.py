@@ -18,14 +18,14 @@ import json
 import shutil
 from pathlib import Path
 
-from bench.report.derive import (ALL_KERNELS, CONFIGS, STARTUP_RUNS, STEP_KERNELS, TARGET_EXPLICIT_NS,
-                                 TARGET_FLOOR_FACTOR, TARGET_IMPLICIT_SPEEDUP, TARGET_SIDE, bandwidths, build,
-                                 derive_floors, find, rows_from_pytest_benchmark, scaling_exponents, targets)
+from bench.report.derive import (ALL_KERNELS, CONFIGS, STARTUP_RUNS, STEP_KERNELS, TARGET_FLOOR_FACTOR,
+                                 TARGET_SIDE, bandwidths, build, derive_floors, find, peer_ratios,
+                                 rows_from_pytest_benchmark, scaling_exponents, targets)
 from bench.report.markdown import markdown
 from bench.report.plots import plot_cost_vs_E, plot_cost_vs_N
 
-__all__ = ["ALL_KERNELS", "CONFIGS", "STARTUP_RUNS", "STEP_KERNELS", "TARGET_EXPLICIT_NS", "TARGET_FLOOR_FACTOR",
-           "TARGET_IMPLICIT_SPEEDUP", "TARGET_SIDE", "bandwidths", "build", "derive_floors", "find", "main",
+__all__ = ["ALL_KERNELS", "CONFIGS", "STARTUP_RUNS", "STEP_KERNELS", "TARGET_FLOOR_FACTOR",
+           "TARGET_SIDE", "bandwidths", "build", "derive_floors", "find", "main", "peer_ratios",
            "markdown", "plot_cost_vs_E", "plot_cost_vs_N", "rows_from_pytest_benchmark", "scaling_exponents",
            "targets", "write"]
 

@@ -18,8 +18,6 @@ from bench import traffic
 from engine.constants import SERIAL_BELOW
 
 TARGET_SIDE = 128
-TARGET_EXPLICIT_NS = 25.0
-TARGET_IMPLICIT_SPEEDUP = 5.0
 TARGET_FLOOR_FACTOR = 3.0
 CONFIGS = ("t2-f64", "t1-f64", "t2-f32")
 STARTUP_RUNS = ("cold", "after-plain-exit", "warm")
@@ -157,6 +155,7 @@ def build(raw_dir) -> dict:
     doc.update(rows=rows, bandwidth=bw, scaling=scaling_exponents(rows),
                startup={k: _load_json(raw / f"startup-{k}.json") for k in STARTUP_RUNS},
                headline=_load_json(raw / "headline.json"), missing=missing)
+    doc["peer_ratios"] = peer_ratios(rows)
     doc["targets"] = targets(doc)
     return doc
 
@@ -165,44 +164,119 @@ def build(raw_dir) -> dict:
 # Targets (reported, never asserted)
 # --------------------------------------------------------------------------------------------
 
+EXPLICIT_PEERS = ("numba", "warp")
+IMPLICIT_TARGET_RATIO = 0.8      # engine whole step <= 0.8 x the fastest contender (128^2, 256^2, tol 1e-5)
+SEQUENCE_TARGET_RATIO = 0.5      # over 60 consecutive steps
+EXPLICIT_TARGET_RATIO = 0.8      # engine <= 0.8 x the faster of Warp and Numba
+
+
+def _is_engine(impl: str) -> bool:
+    return impl == "engine" or impl.startswith("engine-")
+
+
+def _implicit_rows(rows, cfg, side, tol, group="cloth-implicit-step"):
+    """The rows of one implicit comparison: iterative solvers at ``tol``, direct ones (timed once,
+    at 1e-5: they reach ~1e-13) whatever ``tol``."""
+    out = []
+    for r in rows:
+        if r.get("config") != cfg or r.get("group") != group or r.get("side") != side or not r.get("per_step_s"):
+            continue
+        iterative = r.get("impl") in ("engine-pcg", "scipy", "peer-pyamg-cg")
+        if group == "cloth-implicit-step" and iterative and not _close(r.get("tol"), tol):
+            continue
+        out.append(r)
+    return out
+
+
+def _close(a, b) -> bool:
+    return a is not None and b is not None and abs(float(a) - float(b)) <= 1e-12 + 1e-6 * abs(float(b))
+
+
+def peer_ratios(rows: list) -> list:
+    """One entry per comparison row: the engine's fastest time and the fastest peer's, their ratio
+    (engine / peer: below 1 the engine is faster) and the engine row's bandwidth floor."""
+    out = []
+    for cfg in CONFIGS:
+        for model in ("springs+bending", "springs"):
+            for side in sorted({r["side"] for r in rows if r.get("config") == cfg
+                                and r.get("group") == "cloth-explicit-step" and r.get("model") == model}):
+                rs = [r for r in rows if r.get("config") == cfg and r.get("group") == "cloth-explicit-step"
+                      and r.get("model") == model and r.get("side") == side and r.get("per_step_s")]
+                out.append(_ratio_entry("explicit", cfg, side, model, rs, EXPLICIT_PEERS))
+        for group, kind in (("cloth-implicit-step", "implicit"), ("cloth-implicit-sequence", "sequence")):
+            sides = sorted({r["side"] for r in rows if r.get("config") == cfg and r.get("group") == group})
+            for side in sides:
+                tols = sorted({float(r["tol"]) for r in rows if r.get("config") == cfg and r.get("group") == group
+                               and r.get("side") == side and r.get("tol")}, reverse=True)
+                for tol in tols:
+                    rs = _implicit_rows(rows, cfg, side, tol, group)
+                    out.append(_ratio_entry(kind, cfg, side, f"tol {tol:.0e}", rs, None))
+    return [e for e in out if e]
+
+
+def _ratio_entry(kind, cfg, side, what, rs, peer_names):
+    eng = [r for r in rs if _is_engine(r.get("impl", ""))]
+    if peer_names is None:
+        peer = [r for r in rs if not _is_engine(r.get("impl", ""))]
+    else:
+        peer = [r for r in rs if r.get("impl") in peer_names]
+    if not eng:
+        return None
+    e = min(eng, key=lambda r: r["per_step_s"])
+    p = min(peer, key=lambda r: r["per_step_s"]) if peer else None
+    return dict(kind=kind, config=cfg, side=side, what=what, engine=e.get("impl"), engine_solver=e.get("solver"),
+                engine_s=e["per_step_s"], peer=p and p.get("impl"), peer_s=p and p["per_step_s"],
+                ratio=(e["per_step_s"] / p["per_step_s"]) if p else None,
+                floor_s=e.get("floor_s"), bw_fraction=e.get("bw_fraction"),
+                all={r.get("impl"): r["per_step_s"] for r in rs})
+
+
 def targets(doc: dict) -> list:
     rows = doc["rows"]
+    ratios = doc.get("peer_ratios") or peer_ratios(rows)
     out = []
+
+    def judge(name, target, picks, goal):
+        t = dict(name=name, target=target)
+        picks = [p for p in picks if p and p.get("ratio") is not None]
+        if not picks:
+            t.update(measured="not measured (needs the peers: pip install -e '.[peers]')", met=None)
+            return t
+        worst = max(picks, key=lambda p: p["ratio"])
+        t.update(measured="; ".join(f"{p['side']}^2 {p['what']}: {p['ratio']:.2f}x ({_short(p['engine'])} "
+                                    f"{p['engine_s'] * 1e3:.3g} ms vs {_short(p['peer'])} {p['peer_s'] * 1e3:.3g} ms)"
+                                    for p in picks),
+                 value=worst["ratio"], met=worst["ratio"] <= goal,
+                 by=f"worst {worst['ratio']:.2f}x at {worst['side']}^2 {worst['what']}" if worst["ratio"] > goal else "")
+        return t
+
+    pick = lambda kind, cfg, side=None, what=None: [p for p in ratios if p["kind"] == kind and p["config"] == cfg
+                                                    and (side is None or p["side"] == side)
+                                                    and (what is None or p["what"] == what)]
+    t = judge("implicit step, whole step (assembly + set-up + solve), 128^2 and 256^2, tol 1e-5, f64, 2 threads",
+              f"<= {IMPLICIT_TARGET_RATIO:g} x the fastest contender",
+              pick("implicit", "t2-f64", 128, "tol 1e-05") + pick("implicit", "t2-f64", 256, "tol 1e-05"),
+              IMPLICIT_TARGET_RATIO)
+    t["why"] = _why_implicit(rows, ratios)
+    out.append(t)
+    out.append(judge("implicit steps, 60 consecutive steps of the hanging cloth, tol 1e-5",
+                     f"<= {SEQUENCE_TARGET_RATIO:g} x the fastest contender", pick("sequence", "t2-f64"),
+                     SEQUENCE_TARGET_RATIO))
+    out[-1]["why"] = _why_sequence(ratios)
+    for cfg in ("t2-f64", "t2-f32"):
+        for model in ("springs+bending", "springs"):
+            t = judge(f"explicit step, {model}, 64^2 to 256^2, {cfg}",
+                      f"<= {EXPLICIT_TARGET_RATIO:g} x the faster of Warp and Numba",
+                      [p for p in pick("explicit", cfg, what=model) if 64 <= p["side"] <= 256],
+                      EXPLICIT_TARGET_RATIO)
+            if cfg == "t2-f64" and model == "springs+bending":
+                r = find(rows, config="t2-f64", group="cloth-explicit-step", impl="engine", model=model,
+                         side=TARGET_SIDE)
+                if r:
+                    t["why"] = _why_explicit(rows, TARGET_SIDE, r)
+            out.append(t)
+    # every kernel's fraction of the bandwidth floor: reported
     side = TARGET_SIDE
-    # 1. explicit step
-    r = find(rows, config="t2-f64", group="cloth-explicit-step", impl="engine", model="springs+bending", side=side)
-    t = dict(name=f"explicit step, {side}^2 cloth, springs + bending, f64, 2 threads",
-             target=f"<= {TARGET_EXPLICIT_NS:g} ns per vertex per step")
-    if r:
-        ns = r["ns_per_vertex"]
-        t.update(measured=f"{ns:.1f} ns/vertex/step ({r['per_step_s'] * 1e3:.3f} ms/step)", value=ns,
-                 met=ns <= TARGET_EXPLICIT_NS,
-                 by=f"{ns / TARGET_EXPLICIT_NS:.1f}x over" if ns > TARGET_EXPLICIT_NS else "")
-        t["why"] = _why_explicit(rows, side, r)
-    else:
-        t.update(measured="not measured", met=None)
-    out.append(t)
-    # 2. implicit vs scipy
-    s = find(rows, config="t2-f64", group="cloth-implicit-step", impl="scipy", side=side)
-    t = dict(name=f"backward-Euler step, {side}^2 cloth, f64, 2 threads, against numpy + scipy",
-             target=f">= {TARGET_IMPLICIT_SPEEDUP:g}x faster")
-    eng = [find(rows, config="t2-f64", group="cloth-implicit-step", impl="engine-" + sv, side=side)
-           for sv in ("pcg", "cholesky")]
-    eng = [e for e in eng if e]
-    if s and eng:
-        parts, best = [], 0.0
-        for e in eng:
-            sp = s["per_step_s"] / e["per_step_s"]
-            best = max(best, sp)
-            parts.append(f"{e['solver']} {sp:.1f}x ({e['per_step_s']:.3g} s vs {s['per_step_s']:.3g} s)")
-        t.update(measured="; ".join(parts), value=best, met=best >= TARGET_IMPLICIT_SPEEDUP,
-                 by=f"{TARGET_IMPLICIT_SPEEDUP / best:.1f}x short" if best < TARGET_IMPLICIT_SPEEDUP else "")
-        t["why"] = _why_implicit(s, eng)
-    else:
-        t.update(measured="not measured (needs the t2-f64 run with the scipy baseline at this size)", met=None)
-    out.append(t)
-    # 3. kernels vs floor
-    # the engine's kernels (the atomic/serial variants are comparison points, not the engine's)
     ks = [find(rows, config="t2-f64", group="cloth-force-kernels", kernel=k, side=side) for k in STEP_KERNELS]
     ks = [k for k in ks if k and k.get("bw_fraction")]
     for extra in (find(rows, config="t2-f64", group="cloth-explicit-step", impl="engine", model="springs+bending",
@@ -210,14 +284,11 @@ def targets(doc: dict) -> list:
                   find(rows, config="t2-f64", group="cloth-implicit-step", impl="engine-pcg", side=side)):
         if extra and extra.get("bw_fraction"):
             ks.append(extra)
-    t = dict(name=f"each engine kernel within {TARGET_FLOOR_FACTOR:g}x of its bandwidth floor ({side}^2, f64, "
-                  f"2 threads)",
-             target=f"fraction of floor >= {1 / TARGET_FLOOR_FACTOR:.2f}")
+    t = dict(name=f"each engine kernel's fraction of its bandwidth floor ({side}^2, f64, 2 threads)",
+             target=f"reported (within {TARGET_FLOOR_FACTOR:g}x: fraction >= {1 / TARGET_FLOOR_FACTOR:.2f})")
     if ks:
         misses = [k for k in ks if k["bw_fraction"] < 1 / TARGET_FLOOR_FACTOR]
-        within = [f"{_kname(k)} {k['bw_fraction']:.2f}" for k in ks if k not in misses]
-        t.update(measured=f"{len(ks) - len(misses)} of {len(ks)} within {TARGET_FLOOR_FACTOR:g}x"
-                 + (f" ({', '.join(within)} of the floor)" if within else ""), met=not misses,
+        t.update(measured=", ".join(f"{_kname(k)} {k['bw_fraction']:.2f}" for k in ks), met=not misses,
                  value=min(k["bw_fraction"] for k in ks))
         t["by"] = ", ".join(f"{_kname(k)} {1 / k['bw_fraction']:.0f}x from floor" for k in misses)
         t["why"] = _why_floor(rows, misses, side)
@@ -225,6 +296,10 @@ def targets(doc: dict) -> list:
         t.update(measured="not measured", met=None)
     out.append(t)
     return out
+
+
+def _short(impl) -> str:
+    return str(impl or "-").replace("peer-", "")
 
 
 def _kname(r: dict) -> str:
@@ -274,21 +349,38 @@ def _why_explicit(rows, side, step) -> list:
     return why
 
 
-def _why_implicit(s, eng) -> list:
-    asm, sol = s.get("assembly_s", 0) * 1e3, s.get("solve_s", 0) * 1e3
-    why = [f"scipy baseline: assembly {asm:.0f} ms + Jacobi-CG {sol:.0f} ms, "
-           f"{s.get('linear_iterations', '?')} iterations."]
-    for e in eng:
-        if e.get("solver") == "pcg" and e.get("linear_iterations"):
-            it = e["linear_iterations"]
-            per = e["per_step_s"] / it
-            sper = s.get("solve_s", 0) / max(int(s.get("linear_iterations", 1) or 1), 1)
-            why.append(f"engine PCG (3x3 block-Jacobi): {it} iterations, {per * 1e3:.3f} ms per iteration incl. setup, "
-                       f"against scipy's {sper * 1e3:.3f} ms per CG iteration; below {SERIAL_BELOW} vertices the "
-                       f"engine runs the whole CG loop in one serial kernel (one thread).")
-        elif e.get("solver") == "cholesky":
-            why.append(f"engine Cholesky (Eigen LL^T, assembly + factorisation every step): "
-                       f"{e['per_step_s'] * 1e3:.0f} ms per step, independent of the stiffness.")
+def _why_implicit(rows, ratios) -> list:
+    why = []
+    for p in ratios:
+        if p["kind"] != "implicit" or p["config"] != "t2-f64" or p["what"] != "tol 1e-05":
+            continue
+        parts = ", ".join(f"{_short(k)} {v * 1e3:.0f}" for k, v in sorted(p["all"].items(), key=lambda kv: kv[1]))
+        why.append(f"{p['side']}^2, ms per step: {parts}.")
+    for side in (128, 256):
+        e = find(rows, config="t2-f64", group="cloth-implicit-step", impl="engine-pardiso", side=side)
+        pp = find(rows, config="t2-f64", group="cloth-implicit-step", impl="peer-pardiso", side=side)
+        if e and e.get("factorization_s") is not None:
+            line = (f"{side}^2 engine pardiso: assembly {e['assembly_s'] * 1e3:.0f} ms (Taichi gather into the "
+                    f"fixed pattern) + numeric factorisation {e['factorization_s'] * 1e3:.0f} + solve and residual "
+                    f"check {e['solve_s'] * 1e3:.0f}")
+            if pp and pp.get("setup_s") is not None:
+                line += (f"; the same PARDISO driven from numpy: assembly {pp['assembly_s'] * 1e3:.0f} + "
+                         f"factorisation {pp['setup_s'] * 1e3:.0f} + solve {pp['solve_s'] * 1e3:.0f}")
+            why.append(line + ". Both factorise with the same library, so the engine's margin is the assembly "
+                              "and what it does not repeat (the pattern and the symbolic analysis once per model).")
+    return why
+
+
+def _why_sequence(ratios) -> list:
+    why = []
+    for p in ratios:
+        if p["kind"] == "sequence" and p["config"] == "t2-f64":
+            parts = ", ".join(f"{_short(k)} {v * 1e3:.0f}" for k, v in sorted(p["all"].items(), key=lambda kv: kv[1]))
+            why.append(f"{p['side']}^2, ms per step over 60 steps: {parts}.")
+    why.append("Reusing a factorisation across steps as the preconditioner of CG was measured on the 64^2 hanging "
+               "cloth (E = 1e3 N/m, dt = 1/60 s): CG with the previous step's PARDISO factor needed 12-31 iterations "
+               "to reach 1e-5 (refreshed when above 15), and one back-substitution costs about 1/15-1/7 of a "
+               "numeric factorisation, so reuse costs as much as refactorising: the engine refactorises every step.")
     return why
 
 

@@ -66,6 +66,7 @@ def markdown(doc: dict, image_prefix: str) -> str:
         elif t.get("why"):
             L += [f"Details ({t['name']}):", ""] + [f"- {w}" for w in t["why"]] + [""]
 
+    L += _peers_md(doc)
     L += _headline_md(doc.get("headline"), image_prefix)
     L += _explicit_md(rows)
     L += _kernels_md(rows)
@@ -148,8 +149,9 @@ def _per_config(sizes_of, rows_of, header) -> list:
 
 def _explicit_md(rows) -> list:
     L = ["## Cloth: explicit (symplectic Euler) step", "",
-         "ns per vertex per step (median); speed-up = numpy baseline time / engine time (the baseline is timed "
-         "in the 2-thread f64 process); floor = fraction of the bandwidth floor (bench/traffic.py).", ""]
+         "ns per vertex per step (median) of the engine, the Numba and Warp peers (bench/peers) and the numpy "
+         "baseline (timed in the 2-thread f64 process); floor = the engine's fraction of the bandwidth floor "
+         "(bench/traffic.py).", ""]
 
     def table_rows(cfg, sides):
         tr = []
@@ -158,16 +160,18 @@ def _explicit_md(rows) -> list:
             for model in ("springs+bending", "springs"):
                 e = find(rows, config=cfg, group="cloth-explicit-step", impl="engine", model=model, side=side)
                 b = find(rows, config="t2-f64", group="cloth-explicit-step", impl="numpy", model=model, side=side)
-                cells += [_fmt(e and e["ns_per_vertex"], ".1f"), _fmt(b and b["ns_per_vertex"], ".1f"),
-                          _fmt(e and b and b["per_step_s"] / e["per_step_s"], ".1f") + "x" if e and b else "-"]
+                nb = find(rows, config=cfg, group="cloth-explicit-step", impl="numba", model=model, side=side)
+                wp = find(rows, config=cfg, group="cloth-explicit-step", impl="warp", model=model, side=side)
+                cells += [_fmt(e and e["ns_per_vertex"], ".1f"), _fmt(nb and nb["ns_per_vertex"], ".1f"),
+                          _fmt(wp and wp["ns_per_vertex"], ".1f"), _fmt(b and b["ns_per_vertex"], ".1f")]
                 if model == "springs+bending":
                     cells.append(_fmt(e and e.get("bw_fraction"), ".2f"))
             tr.append(cells)
         return tr
 
     return L + _per_config(lambda cfg: _sides(rows, config=cfg, group="cloth-explicit-step"), table_rows,
-                           ["cloth", "vertices", "engine s+b", "numpy s+b", "speed-up (baseline/ours)", "floor",
-                            "engine springs", "numpy springs", "speed-up"])
+                           ["cloth", "vertices", "engine s+b", "Numba s+b", "Warp s+b", "numpy s+b", "floor",
+                            "engine springs", "Numba springs", "Warp springs", "numpy springs"])
 
 
 def _kernels_md(rows) -> list:
@@ -206,34 +210,66 @@ def _kernels_md(rows) -> list:
     return L
 
 
+IMPLICIT_IMPLS = ("engine-pardiso", "engine-cholesky", "engine-pcg", "peer-pardiso", "peer-pardiso-spsolve",
+                  "peer-cholmod", "peer-pyamg-cg", "scipy")
+
+
+def _peers_md(doc) -> list:
+    ratios = doc.get("peer_ratios") or []
+    L = ["## Against the peers", "",
+         "Per row: the engine's fastest way and the fastest contender measured in the same process and rounds "
+         "(explicit: Numba `prange` and Warp CPU kernels, bench/peers; implicit: scipy CG, pyamg, PARDISO, "
+         "CHOLMOD driven from numpy with a precomputed pattern, bench/peers/sparse.py), each checked to compute "
+         "the same forces / solve the same system (bench/test_correctness.py, bench/test_peers_explicit.py). "
+         "ratio = engine time / peer time (below 1: the engine is faster); floor = the engine row's bandwidth "
+         "floor time (bench/traffic.py), where a traffic model exists.", ""]
+    if not ratios:
+        return L + ["Not measured.", ""]
+    tr = []
+    for p in ratios:
+        tr.append((p["kind"], p["config"], f"{p['side']}^2", p["what"], _short(p["engine"]),
+                   _fmt(p["engine_s"] * 1e3, ".3g"), _short(p["peer"]) if p["peer"] else "-",
+                   _fmt(p["peer_s"] and p["peer_s"] * 1e3, ".3g"), _fmt(p["ratio"], ".2f"),
+                   _fmt(p.get("floor_s") and p["floor_s"] * 1e3, ".3g")))
+    return L + _table(["step", "config", "cloth", "model / tol", "engine", "engine ms", "fastest peer", "peer ms",
+                       "ratio", "floor ms"], tr)
+
+
+def _short(impl) -> str:
+    return str(impl or "-").replace("peer-", "")
+
+
 def _implicit_md(rows) -> list:
     L = ["## Cloth: backward-Euler step (dt = 1/60 s, E = 1e3 N/m)", "",
-         "One Baraff-Witkin step (one Newton iteration, no line search) from the same moving, deformed state. "
-         "Engine: PCG with 3x3 block-Jacobi or Cholesky (Eigen LL^T); baseline: numpy assembly + scipy.sparse CG "
-         "with scalar Jacobi, both to relative residual 1e-5 (f32: 1e-4).", ""]
+         "One Baraff-Witkin step (one Newton iteration, no line search) from the same moving, deformed state: "
+         "assembly + set-up (factorisation, multigrid hierarchy, preconditioner) + solve, ms. Engine: PCG with 3x3 "
+         "block-Jacobi, Eigen LL^T, MKL PARDISO; peers: numpy assembly into a precomputed pattern, then scipy CG "
+         "(Jacobi), pyamg smoothed aggregation + CG, PARDISO (analysis once; spsolve: every call), CHOLMOD "
+         "(cholespy). Iterative solvers to the relative residual shown; direct ones reach ~1e-13 (one row).", ""]
 
     def table_rows(cfg, sides):
         tr = []
         for side in sides:
-            s = find(rows, config="t2-f64", group="cloth-implicit-step", impl="scipy", side=side)
-            for sv in ("pcg", "cholesky"):
-                e = find(rows, config=cfg, group="cloth-implicit-step", impl="engine-" + sv, side=side)
-                if not e:
-                    continue
-                tr.append((f"{side}^2", sv, _fmt(e.get("tol"), ".0e"), _fmt(e["per_step_s"] * 1e3, ".1f"),
-                           e.get("linear_iterations", "-"),
-                           _fmt(e["ns_per_vertex"], ".0f"),
-                           f"{s['per_step_s'] * 1e3:.0f} ({s.get('assembly_s', 0) * 1e3:.0f} + "
-                           f"{s.get('solve_s', 0) * 1e3:.0f})"
-                           if s else "-", s.get("linear_iterations", "-") if s else "-",
-                           _fmt(s and s["per_step_s"] / e["per_step_s"], ".1f") + ("x" if s else ""),
-                           _fmt(e.get("bw_fraction"), ".2f")))
+            for impl in IMPLICIT_IMPLS:
+                for r in [r for r in rows if r.get("config") == cfg and r.get("group") == "cloth-implicit-step"
+                          and r.get("side") == side and r.get("impl") == impl and r.get("per_step_s")]:
+                    setup = r.get("factorization_s", r.get("setup_s"))
+                    split = (f"{r['assembly_s'] * 1e3:.0f} / {setup * 1e3:.0f} / {r['solve_s'] * 1e3:.0f}"
+                             if r.get("assembly_s") is not None and setup is not None else "-")
+                    tr.append((f"{side}^2", _short(impl), _fmt(r.get("tol"), ".0e"), _fmt(r["per_step_s"] * 1e3, ".1f"),
+                               split, r.get("linear_iterations", "-"), _fmt(r.get("bw_fraction"), ".2f")))
         return tr
 
-    return L + _per_config(lambda cfg: _sides(rows, config=cfg, group="cloth-implicit-step"), table_rows,
-                           ["cloth", "solver", "tol", "ms/step", "iterations", "ns/vertex",
-                            "scipy ms (assembly + solve)", "scipy iterations", "speed-up (baseline/ours)",
-                            "fraction of floor"])
+    L += _per_config(lambda cfg: _sides(rows, config=cfg, group="cloth-implicit-step"), table_rows,
+                     ["cloth", "solver", "tol", "ms/step", "assembly / set-up / solve ms", "iterations",
+                      "fraction of floor"])
+    seq = [r for r in rows if r.get("group") == "cloth-implicit-sequence" and r.get("per_step_s")]
+    if seq:
+        L += ["60 consecutive steps of the hanging cloth (tol 1e-5), ms per step:", ""]
+        L += _table(["cloth", "solver", "ms/step"], [(f"{r['side']}^2", _short(r["impl"]),
+                                                     _fmt(r["per_step_s"] * 1e3, ".1f"))
+                                                    for r in sorted(seq, key=lambda r: (r["side"], r["per_step_s"]))])
+    return L
 
 
 def _rod_md(rows) -> list:

@@ -2,7 +2,6 @@
 headline sweep, and cost against N (headline sweep and the step benchmarks)."""
 import numpy as np
 
-from bench.report.derive import TARGET_EXPLICIT_NS
 
 
 def plot_cost_vs_E(h, path) -> bool:
@@ -39,10 +38,13 @@ def plot_cost_vs_N(rows, h, path) -> bool:
     Euler at 1/60 s dashed), one colour per E.  Right: ns per vertex per step against N of the step
     benchmarks (t2-f64)."""
     series = [("cloth-explicit-step", dict(impl="engine", model="springs+bending"), "engine explicit", "-o"),
-              ("cloth-explicit-step", dict(impl="numpy", model="springs+bending"), "numpy explicit", "--o"),
-              ("cloth-implicit-step", dict(impl="engine-pcg"), "engine BE PCG (1/60 s)", "-s"),
-              ("cloth-implicit-step", dict(impl="engine-cholesky"), "engine BE Cholesky (1/60 s)", "-^"),
-              ("cloth-implicit-step", dict(impl="scipy"), "scipy BE CG (1/60 s)", "--s")]
+              ("cloth-explicit-step", dict(impl="numba", model="springs+bending"), "Numba explicit", "--o"),
+              ("cloth-explicit-step", dict(impl="warp", model="springs+bending"), "Warp explicit", ":o"),
+              ("cloth-implicit-step", dict(impl="engine-pcg", tol=1e-5), "engine BE PCG 1e-5 (1/60 s)", "-s"),
+              ("cloth-implicit-step", dict(impl="engine-pardiso"), "engine BE PARDISO (1/60 s)", "-^"),
+              ("cloth-implicit-step", dict(impl="peer-pardiso"), "numpy + PARDISO BE (1/60 s)", "--^"),
+              ("cloth-implicit-step", dict(impl="peer-pyamg-cg", tol=1e-5), "numpy + pyamg BE 1e-5 (1/60 s)",
+               "--s")]
     have = [r for r in rows if r.get("config") == "t2-f64" and r.get("group") in ("cloth-explicit-step",
                                                                                     "cloth-implicit-step")]
     sides = (h or {}).get("sides", {})
@@ -76,9 +78,6 @@ def plot_cost_vs_N(rows, h, path) -> bool:
                      if r["group"] == group and all(r.get(k) == v for k, v in kw.items()))
         if pts:
             a2.loglog([p[0] for p in pts], [p[1] for p in pts], style, label=label)
-    a2.axhline(TARGET_EXPLICIT_NS, color="grey", lw=0.8, ls=":")
-    a2.text(a2.get_xlim()[0], TARGET_EXPLICIT_NS, f" {TARGET_EXPLICIT_NS:g} ns target (explicit)", va="bottom",
-            fontsize=8, color="grey")
     a2.set_ylabel("ns per vertex per step")
     a2.set_title("one step (E = 1e3 N/m)", fontsize=9)
     a2.legend(fontsize=7)
