@@ -810,23 +810,22 @@ class PardisoSolver(DirectSolver):
             A = scipy.sparse.csr_matrix((values, pattern.indices, pattern.indptr), shape=(N, N), copy=False)
             A.has_sorted_indices = True
             entry["pattern"], entry["matrix"] = pattern, A
-            entry["values_nd"] = ti.ndarray(dtype=ti.f64, shape=max(pattern.nnz, 1))
             info = current()
             entry["_pardiso_threads"] = info.threads if info is not None else 2
         return entry
 
     def assemble_values(self, model: Model, entry: dict, x, a_s: float, psd: bool, extra) -> np.ndarray:
         """Write the values of A' (P1) at x into the pattern's CSR values; returns them (numpy)."""
-        pattern, values = entry["pattern"], entry["values_nd"]
+        pattern, A = entry["pattern"], entry["matrix"]
+        values = A.data  # the kernels write the CSR values in place (a numpy array: no copy on the CPU)
         init_rows(values, pattern.indptr_nd, model.mass_nd, model.inv_mass_nd, a_s)
         terms = [(1.0, x, psd)] if extra is None else [(extra[0], extra[1], True), (1.0, x, psd)]
         for scale, xx, ps in terms:
             for e in model.energies:
                 if e.n_elements:
                     assemble_rows(pattern, values, e, e.hessian_blocks(xx, ps), scale)
-        A = entry["matrix"]
-        A.data[:] = values.to_numpy()[:pattern.nnz]
-        return A.data
+        ti.sync()
+        return values
 
     def _factorize(self, model, entry, x, a_s, psd, extra) -> bool:
         t0 = time.perf_counter()
