@@ -24,7 +24,11 @@ def missing(name: str) -> str | None:
     """None when the package behind peer ``name`` ("numba" or "warp") can be imported, else a
     one-line reason naming it and how to install it."""
     module = PACKAGES[name]
-    if importlib.util.find_spec(module) is None:
+    try:
+        spec = importlib.util.find_spec(module)
+    except (ImportError, ValueError):
+        spec = None
+    if spec is None:
         pip = "warp-lang" if name == "warp" else "numba"
         return f"{module} is not installed (pip install {pip}, or pip install -e '.[dev,peers]')"
     return None
