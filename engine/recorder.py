@@ -1,9 +1,12 @@
 """Rerun recordings of lesson runs. The only module that imports rerun.
 
 One :class:`Recorder` per lesson run writes one ``.rrd`` file through its own
-``rr.RecordingStream`` (never the global stream). The file is written under a temporary
-name beside the target and renamed onto the target only by :meth:`Recorder.close`, so a
-crash or a kill never leaves a truncated file under the final name.
+``rr.RecordingStream`` (never the global stream). The recording is collected in memory and
+written by :meth:`Recorder.close` into a temporary file beside the target (created when the
+recorder is made, as the proof that the file can be written there), which is then renamed onto
+the target (:mod:`engine.outfile`): a crash, a kill or a full disk never leaves a truncated file
+under the final name, and never destroys the earlier one. A run that did not complete is written
+to ``<stem>.partial.rrd`` and says so in the file (the ``run`` recording property).
 
 The recorder also plans what a student sees when the file is opened: it notes every stage, every
 run, whether a run drew geometry, where that geometry lies, which colour scale it used and
@@ -41,7 +44,6 @@ callers can skip building colours and arrays altogether.
 """
 from __future__ import annotations
 
-import errno
 import math
 import os
 import sys
@@ -52,8 +54,10 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from .outfile import OutputFile, OutputWriteError
+
 __all__ = ["Recorder", "NullRecorder", "RunView", "strain_colors", "magnitude_colors", "check_writable",
-           "summarize", "PROGRESS_TICKS", "FRAMES_PER_RUN"]
+           "summarize", "run_status", "OutputWriteError", "PROGRESS_TICKS", "FRAMES_PER_RUN"]
 
 PROGRESS_TICKS = 1000       # a run's span on the ``progress`` timeline
 FRAMES_PER_RUN = 200        # geometry frames a run draws at most (tens per period of a wave)
@@ -104,36 +108,23 @@ def check_writable(path: str | os.PathLike) -> Path:
     """Return the resolved path if a file can be created there; raise OSError otherwise.
 
     Creates missing parent directories (that is what a user asking for
-    ``--record out/run.rrd`` wants) but writes nothing else.
+    ``--record out/run.rrd`` wants) but writes nothing else. The checks are those of
+    :meth:`engine.outfile.OutputFile.check` (a regular file or a new name; a name that fits).
     """
-    target = Path(path)
-    if target.is_dir():
-        raise IsADirectoryError(f"{target} is a directory")
-    parent = target.parent if str(target.parent) else Path(".")
-    missing = []  # directories this call creates, removed again if the path turns out unusable
-    p = parent
-    while not p.exists() and p != p.parent:
-        missing.append(p)
-        p = p.parent
-    if not p.is_dir():
-        raise NotADirectoryError(errno.ENOTDIR, f"{p} is a file, not a directory", str(parent))
+    out = OutputFile(path)
+    out.check()
+    _, missing = out._existing_ancestor()
     try:
-        parent.mkdir(parents=True, exist_ok=True)
-        if not os.access(parent, os.W_OK | os.X_OK):
-            raise PermissionError(f"directory {parent} is not writable")
-        if target.exists() and not os.access(target, os.W_OK):
-            raise PermissionError(f"{target} exists and is not writable")
-        name_max = os.pathconf(parent, "PC_NAME_MAX")
-        if len(os.fsencode(target.name)) > name_max:
-            raise OSError(errno.ENAMETOOLONG, os.strerror(errno.ENAMETOOLONG), str(target))
-        return target.resolve()
+        for d in reversed(missing):
+            os.mkdir(d)
     except OSError:
-        for d in missing:  # innermost first
+        for d in missing:
             try:
                 d.rmdir()
             except OSError:
                 pass
         raise
+    return out.path
 
 
 # ------------------------------------------------------------------------------ the plan
@@ -395,12 +386,23 @@ class Recorder(NullRecorder):
         super().__init__()
         if camera not in CAMERAS:
             raise ValueError(f"camera must be one of {CAMERAS} (got {camera!r})")
-        self.path = check_writable(path) if path is not None else None
-        self._tmp = self.path.with_name(f".{self.path.name}.partial-{os.getpid()}") if self.path else None
+        if path is None:
+            self.output = None
+        else:
+            self.output = path if isinstance(path, OutputFile) else OutputFile(path)
+            if self.output.tmp is None:
+                self.output.prepare()  # the temporary file beside the target, created now
+        self.path = self.output.path if self.output is not None else None
+        self.written: Path | None = None  # where close() put the file
         self._rec = rr.RecordingStream(application_id)
         if strict:
             rr.set_strict_mode(True)
-        sinks = [rr.FileSink(str(self._tmp))] if self._tmp else []
+        # The file's bytes are collected in memory (a recording is a few MB: its frames and energy
+        # samples are bounded per run) and written by close() itself, so that a write error (a
+        # full disk) is an OSError here, not a message from the SDK's writer thread, and the
+        # earlier file under the final name is kept.
+        self._stream = self._rec.binary_stream() if self.output is not None else None
+        sinks = [self._stream] if self._stream is not None else []
         self.live = bool(live)
         self.live_error = None  # why streaming to the viewer failed, if it did
         if live:
@@ -780,12 +782,22 @@ class Recorder(NullRecorder):
         """The viewer layout for what has been recorded so far (see :func:`lesson_blueprint`)."""
         return lesson_blueprint(self.stages, active)
 
-    def close(self, keep: bool = True, active: int | None = None) -> Path | None:
-        """Send the layout, flush, finish the file and move it onto the final name (or delete it)."""
+    def close(self, keep: bool = True, active: int | None = None, status: dict | None = None) -> Path | None:
+        """Send the layout, flush, and write the file: onto its final name, or (``status`` given
+        with ``complete`` False, a run that did not finish) onto ``<stem>.partial.rrd`` unless the
+        output was made with ``overwrite_partial``. ``status`` (complete, exit_reason, stages
+        asked and completed, ...) is written into the file as the recording property ``run``
+        (:func:`run_status` reads it back); a partial recording also says so in its name and in
+        a "run status" document in its last stage. ``keep`` False deletes the file instead.
+        Returns where the file went (None if nowhere). A write error raises OutputWriteError
+        after removing the temporary file: the earlier file is untouched."""
         if self._closed:
-            return self.path if keep else None
+            return self.written if keep else None
         self._closed = True
+        data = None
         try:
+            if status is not None:
+                self._send_status(status)
             self._end_stage()
             if self.stages:
                 self._rec.send_blueprint(self.blueprint(active), make_active=True, make_default=True)
@@ -797,12 +809,43 @@ class Recorder(NullRecorder):
                 self.live_error = str(exc)
             self._rec.disconnect()
         finally:
-            if self._tmp is not None:
-                if keep and self._tmp.exists():
-                    os.replace(self._tmp, self.path)
-                elif self._tmp.exists():
-                    self._tmp.unlink()
-        return self.path if keep else None
+            if self._stream is not None:
+                try:
+                    data = self._stream.read(flush=False)
+                except Exception:  # nothing readable: treated as an empty recording
+                    data = None
+            if self.output is not None:
+                if keep and data:
+                    self.output.write_bytes(data)  # raises OutputWriteError (temporary file removed)
+                    complete = True if status is None else bool(status.get("complete"))
+                    self.written = self.output.commit(complete)
+                else:
+                    self.output.discard()
+        return self.written if keep else None
+
+    def _send_status(self, status: dict) -> None:
+        """The run's completeness, as the recording property ``run`` (and, for a run that did not
+        complete, in the recording's name and a document in the last stage's tab)."""
+        values = {}
+        for key, value in status.items():
+            if isinstance(value, (list, tuple)):
+                value = [str(v) for v in value] if any(not isinstance(v, (int, float)) for v in value) else list(value)
+                if not value:
+                    continue
+            elif value is None:
+                continue
+            elif not isinstance(value, (bool, int, float, str)):
+                value = str(value)
+            values[key] = value
+        self._rec.send_property("run", rr.AnyValues(**values))
+        if not status.get("complete", True):
+            done = ", ".join(str(s) for s in status.get("stages_completed") or []) or "none"
+            reason = status.get("exit_reason", "did not complete")
+            if self.title:
+                self._rec.send_recording_name(f"{self.title} (PARTIAL: {reason})")
+            if self.stages:
+                self.markdown("run_status", f"**This recording is partial**: {reason}. Stages completed: {done} "
+                                            f"(asked: {', '.join(str(s) for s in status.get('stages_requested') or [])}).")
 
 
 def _corners(px: np.ndarray, py: np.ndarray, tol: float = 1e-4) -> np.ndarray:
@@ -826,6 +869,21 @@ def _envelope(bins: np.ndarray, values: np.ndarray) -> np.ndarray:
     last = np.r_[b[1:] != b[:-1], True]
     keep = np.union1d(order[first], order[last])
     return keep
+
+
+def run_status(path: str | os.PathLike) -> dict | None:
+    """The recording property ``run`` written by :meth:`Recorder.close` (complete, exit_reason,
+    stages_requested, stages_completed, ...), or None if the file has none."""
+    from rerun.chunk import RrdReader
+
+    status = None
+    for chunk in RrdReader(str(path)).stream():
+        if str(chunk.entity_path) == "/__properties/run":
+            for row in chunk.to_record_batch().to_pylist():
+                status = {k: (v[0] if isinstance(v, list) and len(v) == 1 and k != "stages_requested"
+                              and k != "stages_completed" else v)
+                          for k, v in row.items() if not k.startswith("rerun.")}
+    return status
 
 
 def summarize(path: str | os.PathLike) -> dict[str, dict]:

@@ -80,7 +80,13 @@ def validate_config(cfg) -> None:
 # ------------------------------------------------------------------------ interrupts
 
 class Terminated(BaseException):
-    """SIGTERM during a run (exit code 143)."""
+    """SIGTERM or SIGHUP during a run (exit code 128 + the signal: 143, 129); ``args[0]`` is the
+    signal number when known."""
+
+    @property
+    def signum(self) -> int:
+        import signal as _signal
+        return self.args[0] if self.args and isinstance(self.args[0], int) else int(_signal.SIGTERM)
 
 
 _pending_signal: list = []  # the signal a handler saw; re-raised at the next check point
@@ -99,13 +105,14 @@ def check_interrupt() -> None:
     if _pending_signal:
         signum = _pending_signal[-1]
         _pending_signal.clear()
-        raise KeyboardInterrupt() if signum == _signal.SIGINT else Terminated()
+        raise KeyboardInterrupt() if signum == _signal.SIGINT else Terminated(signum)
 
 
 # -------------------------------------------------------------------------- stepping
 
 INTEGRATOR_CHOICES = ("default", "forward-euler", "symplectic-euler", "velocity-verlet", "backward-euler")
 SOLVER_CHOICES = ("default", "pcg", "cholesky", "pardiso", "direct")
+EXPLICIT_INTEGRATORS = ("forward-euler", "symplectic-euler", "velocity-verlet")
 
 
 @dataclass
@@ -132,6 +139,16 @@ class Stepping:
     @property
     def overridden(self) -> bool:
         return self.integrator != "default"
+
+    def validate(self) -> None:
+        """The solver options apply only to backward Euler: refused with an explicit integrator."""
+        if self.integrator in EXPLICIT_INTEGRATORS:
+            given = [flag for flag, on in (("--solver", self.solver != "default"), ("--tol", self.tol is not None),
+                                           ("--newton-iterations", self.newton_iterations is not None)) if on]
+            if given:
+                raise ParameterError(
+                    f"{given[0]} applies only to backward-euler, but --integrator {self.integrator} is explicit "
+                    f"(it solves no system); drop {' and '.join(given)} or use --integrator backward-euler")
 
     def describe(self) -> str:
         if not self.overridden and self.solver == "default" and self.tol is None and self.newton_iterations is None:
@@ -231,12 +248,17 @@ HEADER = ["claim", "theory", "measured", "tolerance", "result"]
 
 
 def text_table(experiments: list[Experiment], width: int = 60) -> str:
+    """The stage's table for the terminal; a claim longer than ``width`` wraps onto the next
+    lines of its column (the full text is always shown)."""
     rows = _rows(experiments)
-    rows = [[textwrap.shorten(r[0], width, placeholder="…")] + r[1:] for r in rows]
+    claims = [textwrap.wrap(r[0], width, break_on_hyphens=False) or [""] for r in rows]
     widths = [max(len(h), *(len(r[i]) for r in rows)) if rows else len(h) for i, h in enumerate(HEADER)]
+    widths[0] = max([len(HEADER[0])] + [len(piece) for c in claims for piece in c])
     line = lambda cells: "  ".join(c.ljust(w) for c, w in zip(cells, widths)).rstrip()
     out = [line(HEADER), line(["-" * w for w in widths])]
-    out += [line(r) for r in rows]
+    for r, pieces in zip(rows, claims):
+        out.append(line([pieces[0]] + r[1:]))
+        out += [line([piece]) for piece in pieces[1:]]
     return "\n".join(out)
 
 
@@ -424,10 +446,13 @@ def _summarise_integrators(used: list[str]) -> str:
     return "; ".join(f"{k} x{v}" for k, v in counts.items())
 
 
-def write_json_atomic(path: str | os.PathLike, data) -> None:
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
-    with open(tmp, "w") as fh:
-        json.dump(data, fh, indent=1)
-        fh.write("\n")
-    os.replace(tmp, path)
+def write_json_atomic(path: str | os.PathLike, data, complete: bool = True) -> Path:
+    """Write ``data`` as JSON to ``path`` atomically (engine.outfile: a regular file or a new name
+    only; a write error keeps the earlier file); returns where it went (the final name, or
+    ``<stem>.partial.json`` when not ``complete``)."""
+    from engine.outfile import OutputFile
+
+    out = OutputFile(path)
+    out.prepare()
+    out.write_bytes((json.dumps(data, indent=1) + "\n").encode("utf-8"))
+    return out.commit(complete)

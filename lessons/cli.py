@@ -1,30 +1,44 @@
 """Command line: ``python -m lessons list`` and ``python -m lessons run <id>|all``.
 
 ``--stage`` takes stage numbers, lists and ranges (``3``, ``2-4``, ``1,3,5``, ``2-3,5``; repeatable);
-``--pause`` waits for Enter between stages (``q`` stops there, as if the run had ended).
+``--pause`` waits for Enter between stages (``q`` stops there). Every other option may be given
+once: a repeated one is refused (it would silently keep the last value).
 
-Exit codes: 0 every experiment passed; 1 an experiment failed (or a simulation blew
-up unexpectedly); 2 bad input (one line on stderr, nothing written); 130 interrupted
-(Ctrl-C); 143 terminated (SIGTERM). On 1, 130 and 143 the recording and the results
-gathered so far are still finalised and written.
+Exit codes: 0 every experiment passed; 1 an experiment failed (or a simulation blew up
+unexpectedly, or an output file could not be written); 2 bad input (one line on stderr,
+nothing written); 128 + the signal for a signal: 130 interrupted (Ctrl-C, SIGINT), 143
+terminated (SIGTERM), 129 hung up (SIGHUP); 141 the output pipe was closed (``| head``).
+
+Output files (engine.outfile): checked and created (as an empty temporary file) before the first
+stage; written when the run ends, atomically. A run that does not complete (a signal, an
+internal error, ``--pause`` stopped, a recording that could not be written) writes
+``<stem>.partial.rrd`` / ``<stem>.partial.json``, marked partial inside, and leaves the files of
+an earlier run under the final names alone (``--overwrite-partial``: the final names).
 """
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import difflib
+import errno
 import os
 import re
-import shutil
 import signal
-import subprocess
 import sys
+import time
+from datetime import datetime, timezone
 from pathlib import Path
 
+from engine.outfile import OutputWriteError
+
 from . import registry
+from .output import encode as encode_results, results_document
 from ._framework import (Stepping, Terminated, _field_type, _pending_signal, note_signal, range_text, run_lesson,
-                         validate_config, write_json_atomic)
+                         validate_config)
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INT, EXIT_TERM = 0, 1, 2, 130, 143
+EXIT_HUP, EXIT_PIPE = 129, 141
+HANDLED_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
 
 
 class UsageError(Exception):
@@ -40,11 +54,61 @@ class _Parser(argparse.ArgumentParser):
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
         self._negative_number_matcher = _NEGATIVE_NUMBER
+        self._given: dict = {}
+
+    def parse_known_args(self, args=None, namespace=None):
+        self._given = {}  # action -> the option string that set it (repeats are refused)
+        return super().parse_known_args(args, namespace)
 
     def error(self, message):  # one line instead of argparse's usage + error
         # "argument --E: --E must be ..." -> "--E must be ..."
         message = re.sub(r"^argument (-[\w-]+): (?=\1 )", "", message)
+        m = re.match(r"unrecognized arguments: (.*)", message)
+        if m:
+            message += _suggestion(m[1].split(), self._option_string_actions)
         raise UsageError(f"{message} (see '{self.prog} --help')")
+
+
+def _suggestion(tokens: list[str], options) -> str:
+    """'; did you mean --E?' for the first unknown option close to a known one (e.g. -E 4)."""
+    known = sorted(o for o in options if o.startswith("--"))
+    for tok in tokens:
+        if not tok.startswith("-") or _NEGATIVE_NUMBER.match(tok):
+            continue
+        name = tok.split("=", 1)[0]
+        close = difflib.get_close_matches(name, known, n=1, cutoff=0.6)
+        if not close and not name.startswith("--"):
+            close = difflib.get_close_matches("-" + name, known, n=1, cutoff=0.6)
+        if close:
+            return f"; did you mean {close[0]}?"
+    return ""
+
+
+_ONCE_CLASSES: dict = {}
+
+
+def _given_once(parser: argparse.ArgumentParser) -> None:
+    """Make every option of ``parser`` but the repeatable ones (append actions: --stage) refuse a
+    second use: argparse would silently keep the last value (--E 1 --E 2)."""
+    for action in parser._actions:
+        base = type(action)
+        if not action.option_strings or isinstance(action, (argparse._AppendAction, argparse._HelpAction,
+                                                             argparse._VersionAction)):
+            continue
+        if base not in _ONCE_CLASSES:
+            def __call__(self, parser_, namespace, values, option_string=None, _base=base):
+                given = getattr(parser_, "_given", None)
+                if given is not None:
+                    if self in given:
+                        first = given[self]
+                        name = next((o for o in self.option_strings if o.startswith("--")), self.option_strings[0])
+                        also = "" if first == option_string else f" (as {first} and {option_string})"
+                        raise UsageError(f"{name} is given twice{also}: give each option once (only --stage "
+                                         f"may be repeated)")
+                    given[self] = option_string
+                _base.__call__(self, parser_, namespace, values, option_string)
+            _ONCE_CLASSES[base] = type(f"Once{base.__name__}", (base,), {"__call__": __call__})
+        action.__class__ = _ONCE_CLASSES[base]
 
 
 _CONTROL = re.compile("[\x00-\x1f\x7f-\x9f\u2028\u2029]")  # would break the one-line error message
@@ -142,9 +206,11 @@ def _run_parser(lesson_ids: list[str], lesson=None) -> argparse.ArgumentParser:
         desc = f"{lesson.id}: {lesson.title}. {lesson.summary}\nStages: " + "; ".join(
             f"{i}. {s.title}" for i, s in enumerate(lesson.stages, 1))
     p = _Parser(prog=prog, description=desc, formatter_class=argparse.RawDescriptionHelpFormatter,
-                epilog="Exit codes: 0 all experiments passed, 1 an experiment failed, 2 bad input, "
-                       "130 interrupted, 143 terminated. Environment: ELASTIC_ARCH, ELASTIC_THREADS, "
-                       "ELASTIC_FP, ELASTIC_CACHE_DIR set the defaults of --arch/--threads/precision/cache.")
+                epilog="Exit codes: 0 all experiments passed, 1 an experiment failed (or an output file could "
+                       "not be written), 2 bad input, 130 interrupted (SIGINT), 143 terminated (SIGTERM), 129 "
+                       "hung up (SIGHUP), 141 output pipe closed. Environment: ELASTIC_ARCH, ELASTIC_THREADS, "
+                       "ELASTIC_FP, ELASTIC_CACHE_DIR set the defaults of --arch/--threads/precision/cache; "
+                       "TI_LOG_LEVEL Taichi's log level. Every option but --stage may be given once.")
     p.add_argument("lesson", metavar="LESSON", help="lesson id (" + ", ".join(lesson_ids) + ") or 'all'")
     p.add_argument("--stage", action="append", default=None, metavar="N|A-B|LIST",
                    help="run only these stages (1-based): a number (3), a range (2-4), a list (1,3,5) or "
@@ -152,16 +218,25 @@ def _run_parser(lesson_ids: list[str], lesson=None) -> argparse.ArgumentParser:
                         "ascending order, each once (default: every stage); needs a single lesson")
     p.add_argument("--pause", action="store_true",
                    help="after each stage (with 'all', also after each lesson) wait for Enter before the "
-                        "next; q + Enter (or Ctrl-D) stops there, the recording and results written as on "
-                        "a normal end; needs an interactive terminal")
+                        "next; q + Enter (or Ctrl-D) stops there, the recording and results of the stages run "
+                        "written (as partial: see --overwrite-partial); needs an interactive terminal")
     rec = p.add_mutually_exclusive_group()
     rec.add_argument("--record", metavar="PATH", default=None,
-                     help="write the Rerun recording to PATH (default: recordings/<id>.rrd); with 'all', "
-                          "PATH is a directory that receives <id>.rrd for each lesson")
+                     help="write the Rerun recording to PATH (default: recordings/<id>.rrd); PATH ending in / "
+                          "(and, with 'all', any PATH) is a directory that receives <id>.rrd; missing "
+                          "directories are created; only a regular file (or a new name) is replaced")
     rec.add_argument("--no-record", action="store_true", help="do not write a recording")
     p.add_argument("--results", metavar="PATH", default=None,
-                   help="also write every experiment as JSON (list of {lesson, stage, id, claim, theory, "
-                        "measured, tolerance, passed}; id: the experiment's stable name in its lesson) to PATH")
+                   help="also write the results as JSON to PATH: an object with the run's metadata (complete, "
+                        "exit_reason, lessons, stages asked and completed, parameters, runtime, version, times) "
+                        "and 'experiments', a list of {lesson, stage, id, claim, theory, measured, tolerance, "
+                        "passed, ...} (id: the experiment's stable name in its lesson); missing directories are "
+                        "created; '-' and '' are refused (the tables go to standard output)")
+    p.add_argument("--overwrite-partial", action="store_true",
+                   help="a run that does not complete (interrupted, stopped at --pause, failed to write) writes "
+                        "its recording and results under the final names, replacing earlier files (still "
+                        "marked partial inside); default: <stem>.partial.rrd / <stem>.partial.json, so that a "
+                        "complete earlier file is never replaced by a partial one")
     p.add_argument("--threads", type=int, default=None, metavar="N",
                    help="CPU threads for Taichi (default: 2, or $ELASTIC_THREADS)")
     p.add_argument("--arch", default=None, metavar="NAME",
@@ -174,6 +249,7 @@ def _run_parser(lesson_ids: list[str], lesson=None) -> argparse.ArgumentParser:
                                      "keep it and are marked [fixed] in the stage's integrator line)")
     if lesson is not None:
         _add_config_options(p, lesson.config)
+    _given_once(p)
     return p
 
 
@@ -185,7 +261,14 @@ def _main_parser(lesson_ids: list[str]) -> argparse.ArgumentParser:
                        "the lesson's parameters)\n\nLessons: " + ", ".join(lesson_ids),
                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("command", choices=["list", "run"], help="list or run")
+    p.add_argument("--version", action="version", version=f"%(prog)s {_version()}",
+                   help="print the package version and exit")
     return p
+
+
+def _version() -> str:
+    from .output import package_version
+    return f"(elastic-lessons) {package_version()}"
 
 
 def _list(out) -> int:
@@ -195,33 +278,134 @@ def _list(out) -> int:
     return EXIT_OK
 
 
-def _record_paths(args, chosen) -> dict:
-    if args.no_record:
-        return {l.id: None for l in chosen}
-    if args.record is None:
-        return {l.id: Path("recordings") / f"{l.id}.rrd" for l in chosen}
-    if len(chosen) > 1:
-        return {l.id: Path(args.record) / f"{l.id}.rrd" for l in chosen}
-    return {chosen[0].id: Path(args.record)}
+def _shown(text: str) -> str:
+    """A path as the user typed it, printable (bytes that are not UTF-8 as \\xNN escapes)."""
+    return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
 
 
-def _check_output(flag: str, path: Path) -> None:
-    from engine.recorder import check_writable  # imports rerun; only when recording
+def _output(flag: str, text: str, overwrite_partial: bool, lesson_id: str | None = None):
+    """The OutputFile for ``flag PATH`` (constructed and checked, nothing created yet)."""
+    from engine.outfile import OutputFile
+    hint = "choose a writable path" + (" or --no-record" if flag == "--record" else "")
     try:
-        check_writable(path)
+        target = OutputFile(text, overwrite_partial=overwrite_partial)
+        target.check()
+    except IsADirectoryError as exc:
+        more = (f"; end it with / to record into it as {text.rstrip('/')}/{lesson_id}.rrd"
+                if flag == "--record" and lesson_id and not text.endswith("/") else "")
+        raise UsageError(f"{flag} {_shown(text)}: cannot write there ({exc.strerror or exc}{more}); {hint}") from None
     except OSError as exc:
-        raise UsageError(f"{flag} {path}: cannot write there ({exc.strerror or exc}); "
-                         f"choose a writable path{' or --no-record' if flag == '--record' else ''}")
+        raise UsageError(f"{flag} {_shown(text)}: cannot write there ({exc.strerror or exc}); {hint}") from None
+    return target
 
 
-def _check_results_path(path: Path) -> None:
-    parent = path.parent if str(path.parent) else Path(".")
+def _outputs(args, chosen) -> tuple:
+    """(results OutputFile or None, {lesson id: recording OutputFile or None}), every path checked
+    (kinds, names, overlaps) but nothing created."""
+    ow = args.overwrite_partial
+    for flag, value in (("--results", args.results), ("--record", args.record)):
+        if value is not None and value.strip() in ("", "-"):
+            raise UsageError(f"{flag} needs a file name (got {value!r}); standard output is not supported "
+                             f"(the tables go there)" + ("; use --no-record for no recording" if flag == "--record"
+                                                         else ""))
+    results = _output("--results", args.results, ow) if args.results is not None else None
+    records = {}
+    for l in chosen:
+        if args.no_record:
+            records[l.id] = None
+            continue
+        if args.record is None:
+            text = os.path.join("recordings", f"{l.id}.rrd")
+        elif len(chosen) > 1 or args.record.endswith(("/", os.sep)):
+            text = os.path.join(args.record, f"{l.id}.rrd")
+        else:
+            text = args.record
+        records[l.id] = _output("--record", text, ow, l.id)
+    # one file must not receive two outputs (--record X --results X would put the JSON over the recording)
+    names = [("--results", results)] + [("--record", r) for r in records.values()]
+    names = [(flag, t) for flag, t in names if t is not None]
+    for i, (flag_a, a) in enumerate(names):
+        for flag_b, b in names[i + 1:]:
+            if {a.path, a.partial_path} & {b.path, b.partial_path}:
+                raise UsageError(f"{flag_a} {_shown(a.given)} and {flag_b} {_shown(b.given)} name the same file "
+                                 f"({a.path if a.path in (b.path, b.partial_path) else a.partial_path}); give them "
+                                 f"different names")
+    return results, records
+
+
+def _prepare(targets: list) -> None:
+    """Create every output's directories and temporary file (all or none)."""
+    done = []
     try:
-        ok = not path.is_dir() and parent.is_dir() and os.access(parent, os.W_OK)
-    except OSError as exc:  # e.g. a name too long for the file system
-        raise UsageError(f"--results {path}: cannot write there ({exc.strerror or exc})") from None
-    if not ok:
-        raise UsageError(f"--results {path}: cannot write there (the directory must exist and be writable)")
+        for flag, t in targets:
+            try:
+                t.prepare()
+            except OSError as exc:
+                hint = "choose a writable path" + (" or --no-record" if flag == "--record" else "")
+                raise UsageError(f"{flag} {_shown(t.given)}: cannot write there ({exc.strerror or exc}); "
+                                 f"{hint}") from None
+            done.append(t)
+    except BaseException:
+        for t in reversed(done):
+            t.discard(remove_dirs=True)
+        raise
+
+
+def _say(stream, text: str) -> None:
+    """Print for the clean-up messages: never raises (a closed pipe must not stop the files)."""
+    try:
+        print(text, file=stream, flush=True)
+    except (OSError, ValueError):
+        pass
+
+
+class _Signals:
+    """The signals of this run: the first one raises (KeyboardInterrupt, Terminated) and stops
+    the stages; any later one, and any one during clean-up, is only noted, so writing the files is
+    never interrupted (and never prints a traceback). ``first`` decides the exit code."""
+
+    def __init__(self):
+        self.received: list[int] = []
+        self.raised = False
+        self.cleaning = False
+
+    @property
+    def first(self) -> int | None:
+        return self.received[0] if self.received else None
+
+    def handler(self, signum, frame):
+        self.received.append(signum)
+        if self.raised or self.cleaning:
+            return
+        self.raised = True
+        note_signal(signum)  # acted on later if this raise lands in a __del__ and is swallowed
+        raise KeyboardInterrupt() if signum == signal.SIGINT else Terminated(signum)
+
+
+_SIGNAL_WORDS = {signal.SIGINT: "interrupted (SIGINT)", signal.SIGTERM: "terminated (SIGTERM)"}
+if hasattr(signal, "SIGHUP"):
+    _SIGNAL_WORDS[signal.SIGHUP] = "hung up (SIGHUP)"
+
+
+def _outcome(exc: BaseException | None, stopped: bool, passed: bool) -> tuple[int, str]:
+    """(exit code, exit reason) of a run that ended with ``exc`` (None: normally)."""
+    from engine.outfile import OutputWriteError
+    if exc is None:
+        code = EXIT_OK if passed else EXIT_FAILED
+        if stopped:
+            return code, "stopped at --pause"
+        return code, "completed" if passed else "completed; an experiment failed"
+    if isinstance(exc, KeyboardInterrupt):
+        return EXIT_INT, _SIGNAL_WORDS[signal.SIGINT]
+    if isinstance(exc, Terminated):
+        return 128 + exc.signum, _SIGNAL_WORDS.get(exc.signum, f"signal {exc.signum}")
+    if isinstance(exc, BrokenPipeError):
+        return EXIT_PIPE, "the output pipe was closed"
+    if isinstance(exc, OutputFailed):
+        return EXIT_FAILED, str(exc)
+    if isinstance(exc, OutputWriteError):
+        return EXIT_FAILED, f"an output file could not be written ({exc.strerror or exc})"
+    return EXIT_FAILED, f"internal error: {type(exc).__name__}: {exc}"
 
 
 def _live_viewer(args, paths: dict, out) -> bool:
@@ -263,7 +447,7 @@ def _lesson_token(argv: list[str], lessons_) -> str | None:
     return None
 
 
-def run(argv: list[str], out=None, err=None, stdin=None) -> int:
+def run(argv: list[str], out=None, err=None, stdin=None, signals: "_Signals | None" = None) -> int:
     out = sys.stdout if out is None else out  # looked up per call (the streams may be redirected)
     err = sys.stderr if err is None else err
     stdin = sys.stdin if stdin is None else stdin
@@ -308,52 +492,170 @@ def run(argv: list[str], out=None, err=None, stdin=None) -> int:
         raise UsageError(str(exc)) from None
     from engine import runtime
     try:
-        runtime.init(arch=args.arch, threads=args.threads)
+        runtime.init(arch=args.arch, threads=args.threads, warn=lambda line: _say(err, line))
         from .backends import check
         check(chosen, configs)  # f64 only, and the backends each lesson's physics holds on
     except runtime.RuntimeConfigError as exc:
         raise UsageError(str(exc)) from None
 
-    if args.results:  # before --record, whose check creates missing directories
-        _check_results_path(Path(args.results))
-    paths = _record_paths(args, chosen)
-    for p in paths.values():
-        if p is not None:
-            _check_output("--record", p)
+    info = runtime.current()
 
-    live = _live_viewer(args, paths, out)
+    # Every output path: checked (kinds, names, overlaps), then created as empty temporary files
+    # beside their targets, before the first stage; a bad one is bad input (exit 2, nothing left).
+    results_target, record_targets = _outputs(args, chosen)
+    targets = ([("--results", results_target)] if results_target is not None else []) + [
+        ("--record", t) for t in record_targets.values() if t is not None]
+    _prepare(targets)
+
+    signals = signals if signals is not None else _Signals()
+    requested = {l.id: list(stages) if stages else list(range(1, len(l.stages) + 1)) for l in chosen}
+    completed: dict[str, list[int]] = {l.id: [] for l in chosen}
     results: list[dict] = []
-    all_passed = True
-    finished_paths = []
+    started = time.time()
+    common = dict(version=_package_version(), runtime=info.as_dict() if info is not None else None)
+    all_passed, stopped, failure = True, False, None
+    open_rec = None  # (recorder, lesson) of the lesson being run, until its recording is closed
+
+    def stages_done(lesson_id: str) -> list[int]:
+        return sorted({r["stage"] for r in results if r.get("lesson") == lesson_id})
+
+    def close_recording(rec, l, exc, stop_here: bool, passed: bool) -> None:
+        """Write the lesson's recording (partial unless every stage asked ran) and say where."""
+        nonlocal open_rec
+        open_rec = None
+        target = record_targets.get(l.id)
+        code, reason = _outcome(exc, stop_here, passed)
+        complete = completed[l.id] == requested[l.id]
+        status = dict(complete=complete, exit_reason=reason, exit_code=code, lesson=l.id,
+                      stages_requested=requested[l.id], stages_completed=completed[l.id],
+                      arch=common["runtime"]["arch"] if common["runtime"] else None,
+                      backend=common["runtime"]["backend"] if common["runtime"] else None,
+                      precision=common["runtime"]["precision"] if common["runtime"] else None,
+                      threads=common["runtime"]["threads"] if common["runtime"] else None,
+                      version=common["version"], finished=_now())
+        was_cleaning = signals.cleaning
+        signals.cleaning = True  # a signal now is noted; the file is finished first
+        try:
+            written = rec.close(status=status) if target is not None else rec.close()
+        except OutputWriteError as e:
+            raise OutputFailed(f"--record {_shown(target.given)}: could not write the recording "
+                               f"({e.strerror or e}); the earlier file there is kept and the partial one "
+                               f"removed") from None
+        finally:
+            signals.cleaning = was_cleaning
+        if getattr(rec, "live_error", None):
+            _say(err, f"--view: the live viewer stopped receiving ({rec.live_error}); the recording file is "
+                      f"complete")
+        if written is not None:
+            if complete:
+                _say(out, f"\nrecording: {_shown(str(written))}  (open with: rerun {_shown(str(written))})")
+            else:
+                kept = (f"; the earlier {_shown(str(target.path))} is kept" if target.path != written
+                        and target.path.exists() else "")
+                _say(out, f"\nrecording (PARTIAL: {reason}; stages {_stage_list(completed[l.id])} of "
+                          f"{_stage_list(requested[l.id])}): {_shown(str(written))}{kept}")
+        if not was_cleaning and signals.received and not signals.raised:
+            signals.raised = True  # a signal came while the file was written: stop now
+            first = signals.first
+            raise KeyboardInterrupt() if first == signal.SIGINT else Terminated(first)
+
+    live = _live_viewer(args, {k: (t.path if t is not None else None) for k, t in record_targets.items()}, out)
     try:
+        _say(out, f"runtime: {info.describe()}" if info is not None else "runtime: not initialised")
         for number, l in enumerate(chosen, 1):
             if pause is not None and number > 1 and not pause.ask(
                     f"lesson {number}/{len(chosen)}: {l.id}, stage 1/{len(l.stages)}: {l.stages[0].title}"):
+                stopped = True
                 break
-            rec = _make_recorder(l, paths[l.id], live)
+            rec = _make_recorder(l, record_targets[l.id], live)
+            open_rec = (rec, l)
             # between= only with --pause (a runner stubbed in the tests may not take it)
             extra = {} if pause is None else {"between": pause.for_lesson(l)}
             try:
                 ok = run_lesson(l, configs[l.id], rec, stages, out=out, err=err, quiet=args.quiet,
                                 results=results, stepping=stepping, **extra)
-            finally:
-                final = rec.close()
-                if getattr(rec, "live_error", None):
-                    print(f"--view: the live viewer stopped receiving ({rec.live_error}); the recording "
-                          f"file is complete", file=err)
-            if final is not None:
-                finished_paths.append(final)
-                print(f"\nrecording: {final}  (open with: rerun {final})", file=out)
+            except BaseException as exc:
+                signals.cleaning = True
+                completed[l.id] = stages_done(l.id)
+                try:
+                    close_recording(rec, l, exc, False, False)
+                except OutputFailed as e:  # the run's own failure is the one that counts
+                    _say(err, f"python -m lessons: error: {e}")
+                raise
+            stop_here = pause is not None and pause.stopped
+            completed[l.id] = stages_done(l.id) if stop_here else list(requested[l.id])
             all_passed &= ok
-            if pause is not None and pause.stopped:
+            close_recording(rec, l, None, stop_here, ok)
+            if stop_here:
+                stopped = True
                 break
+    except BaseException as exc:
+        failure = exc
     finally:
-        if args.results:
-            write_json_atomic(args.results, results)
-    n_fail = sum(not r["passed"] for r in results)
-    print(f"\n{len(results) - n_fail} of {len(results)} experiments passed"
-          + ("" if n_fail == 0 else f"; {n_fail} FAILED"), file=out)
+        signals.cleaning = True
+        if open_rec is not None:  # interrupted between the lesson's end and its recording's close
+            rec, l = open_rec
+            completed[l.id] = stages_done(l.id)
+            try:
+                close_recording(rec, l, failure, False, False)
+            except OutputFailed as e:
+                _say(err, f"python -m lessons: error: {e}")
+        code, reason = _outcome(failure, stopped, all_passed)
+        complete = all(completed[l.id] == requested[l.id] for l in chosen)
+        if results_target is not None:
+            doc = results_document(
+                results, complete=complete, exit_code=code, exit_reason=reason, lessons=[l.id for l in chosen],
+                stages_requested=requested, stages_completed=completed,
+                parameters={l: dataclasses.asdict(c) for l, c in configs.items()},
+                stepping=dataclasses.asdict(stepping), runtime=common["runtime"], version=common["version"],
+                command=["python -m lessons", "run", *argv], started=_now(started), finished=_now(),
+                elapsed_s=round(time.time() - started, 3))
+            try:
+                results_target.write_bytes(encode_results(doc))
+                where = results_target.commit(complete)
+                if complete:
+                    _say(out, f"results: {_shown(str(where))}")
+                else:
+                    kept = (f"; the earlier {_shown(str(results_target.path))} is kept"
+                            if results_target.path.exists() else "")
+                    _say(out, f"results (PARTIAL: {reason}): {_shown(str(where))}{kept}")
+            except OutputWriteError as e:
+                _say(err, f"python -m lessons: error: --results {_shown(results_target.given)}: could not write "
+                          f"the results ({e.strerror or e}); the earlier file there is kept and the partial one "
+                          f"removed")
+                if failure is None:
+                    failure = OutputFailed("the results could not be written")
+                    failure.reported = True
+        for _, t in targets:  # any temporary file still there (a recorder never made)
+            t.discard()
+        n_fail = sum(not r["passed"] for r in results)
+        _say(out, f"\n{len(results) - n_fail} of {len(results)} experiments passed"
+                  + ("" if n_fail == 0 else f"; {n_fail} FAILED")
+                  + ("" if complete else f" (the run did not complete: {reason})"))
+    if failure is not None:
+        raise failure
+    if signals.first is not None:  # came during the clean-up of a finished run
+        return 128 + signals.first
     return EXIT_OK if all_passed else EXIT_FAILED
+
+
+class OutputFailed(Exception):
+    """An output file could not be written at the end of the run (exit 1; one line)."""
+
+    reported = False
+
+
+def _stage_list(stages: list[int]) -> str:
+    return ",".join(str(s) for s in stages) if stages else "none"
+
+
+def _now(t: float | None = None) -> str:
+    return datetime.fromtimestamp(time.time() if t is None else t, timezone.utc).isoformat(timespec="seconds")
+
+
+def _package_version() -> str:
+    from .output import package_version
+    return package_version()
 
 
 def _make_recorder(lesson, path, live: bool = False):
@@ -366,22 +668,25 @@ def _make_recorder(lesson, path, live: bool = False):
                     camera=lesson.camera, live=live)
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, restore_signals: bool = True) -> int:
+    """``python -m lessons ARGV``; returns the exit code. The signal handlers it installs (SIGINT,
+    SIGTERM, SIGHUP) are put back on return unless ``restore_signals`` is False (the program's
+    own entry point keeps them until the process ends, so a late signal never kills it)."""
     argv = list(sys.argv[1:] if argv is None else argv)
-
-    def on_signal(signum, frame):
-        note_signal(signum)  # acted on later if this raise lands in a __del__ and is swallowed
-        raise KeyboardInterrupt() if signum == signal.SIGINT else Terminated()
-
+    signals = _Signals()
     _pending_signal.clear()
-    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+    previous = {sig: signal.signal(sig, signals.handler) for sig in HANDLED_SIGNALS}
     try:
+        try:
+            from engine import runtime  # first: it prepares the environment Taichi's import needs
+        except ValueError as exc:  # runtime.RuntimeConfigError: a bad TI_LOG_LEVEL
+            raise UsageError(str(exc)) from None
         lessons_ = registry.all_lessons()
         ids = [l.id for l in lessons_]
         if not argv:
             raise UsageError("a command is required: list or run (see 'python -m lessons --help')")
-        if argv[0] in ("-h", "--help"):
-            _main_parser(ids).print_help()
+        if argv[0] in ("-h", "--help", "--version"):
+            _main_parser(ids).parse_args(argv[:1])
             return EXIT_OK
         command, rest = argv[0], argv[1:]
         if command == "list":
@@ -389,20 +694,28 @@ def main(argv: list[str] | None = None) -> int:
                 raise UsageError(f"'list' takes no arguments (got {' '.join(rest)})")
             return _list(sys.stdout)
         if command == "run":
-            return run(rest)
+            return run(rest, signals=signals)
         raise UsageError(f"command must be 'list' or 'run' (got {command!r}); see 'python -m lessons --help'")
-    except SystemExit as exc:  # --help
+    except SystemExit as exc:  # --help, --version
         return int(exc.code or 0)
     except UsageError as exc:  # one line, whatever the user typed (control characters escaped)
         message = _CONTROL.sub(lambda m: repr(m.group())[1:-1], str(exc))
-        print(f"python -m lessons: error: {message}", file=sys.stderr)
+        _say(sys.stderr, f"python -m lessons: error: {message}")
         return EXIT_USAGE
     except KeyboardInterrupt:
-        print("\ninterrupted: the recording and the results so far were written", file=sys.stderr)
+        _say(sys.stderr, "\ninterrupted (SIGINT): the output so far is written, marked partial")
         return EXIT_INT
-    except Terminated:
-        print("\nterminated: the recording and the results so far were written", file=sys.stderr)
-        return EXIT_TERM
+    except Terminated as exc:
+        _say(sys.stderr, f"\n{_SIGNAL_WORDS.get(exc.signum, f'signal {exc.signum}')}: the output so far is "
+                         f"written, marked partial")
+        return 128 + exc.signum
+    except BrokenPipeError:  # '| head': stop quietly (the files are written, marked partial)
+        _silence_stdout()
+        return EXIT_PIPE
+    except OutputFailed as exc:
+        if not exc.reported:
+            _say(sys.stderr, f"python -m lessons: error: {exc}")
+        return EXIT_FAILED
     except Exception as exc:  # a bug, not bad input: one line, the work so far kept, exit 1
         if os.environ.get("ELASTIC_DEBUG"):
             raise
@@ -410,11 +723,37 @@ def main(argv: list[str] | None = None) -> int:
         while where is not None and where.tb_next is not None:
             where = where.tb_next
         loc = f" at {Path(where.tb_frame.f_code.co_filename).name}:{where.tb_lineno}" if where else ""
-        print(f"python -m lessons: internal error{loc}: {type(exc).__name__}: {exc} (the recording and the "
-              f"results so far were written; set ELASTIC_DEBUG=1 for the traceback, and please report it)",
-              file=sys.stderr)
+        _say(sys.stderr, f"python -m lessons: internal error{loc}: {type(exc).__name__}: {exc} (the output so "
+                         f"far is written, marked partial; set ELASTIC_DEBUG=1 for the traceback, and please "
+                         f"report it)")
         return EXIT_FAILED
     finally:
         _pending_signal.clear()
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+        if restore_signals:
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+        else:
+            signals.cleaning = True  # from here on a signal is only noted (see lessons/__main__.py)
+            _after_main[:] = [signals, len(signals.received)]
+
+
+_after_main: list = []  # [the _Signals of main(restore_signals=False), signals seen by its return]
+
+
+def late_signal() -> int | None:
+    """A signal that arrived after :func:`main` (restore_signals=False) returned, if any."""
+    if not _after_main:
+        return None
+    signals, seen = _after_main
+    return signals.received[seen] if len(signals.received) > seen else None
+
+
+def _silence_stdout() -> None:
+    """After a closed pipe: point stdout at /dev/null so that the interpreter's final flush does
+    not complain."""
+    try:
+        fd = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(fd, sys.stdout.fileno())
+        os.close(fd)
+    except (OSError, ValueError, AttributeError):
+        pass

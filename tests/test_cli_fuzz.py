@@ -42,6 +42,7 @@ from hypothesis import HealthCheck, example, given, settings, strategies as st
 from engine import runtime
 from lessons import cli, registry
 from lessons._framework import Stepping, _field_type
+from lessons.output import result_rows
 from tests.helpers import ROOT
 
 LESSONS = registry.all_lessons()
@@ -371,7 +372,9 @@ def test_valid_argument_lists_are_accepted_with_their_values(argv):
     values = given_values(argv)
     fields = LESSON_FIELDS[lesson.id]
     cfg = lesson.config(**{fields[f][0]: fields[f][1](v) for f, v in values.items() if f in fields})
+    stepping = Stepping(**{STEPPING[f][0]: STEPPING[f][1](v) for f, v in values.items() if f in STEPPING})
     try:
+        stepping.validate()  # e.g. --tol with an explicit --integrator is refused
         cfg.validate() if callable(getattr(cfg, "validate", None)) else None
         if lesson.validate is not None:
             lesson.validate(cfg)
@@ -423,7 +426,7 @@ def test_random_valid_argument_lists_run_for_real(argv):
                            timeout=300, env=env)
         context = f"argv={argv!r}\nrc={r.returncode}\nstdout={r.stdout[-3000:]}\nstderr={r.stderr[-3000:]}"
         assert r.returncode in (0, 1) and "Traceback" not in r.stderr, context
-        rows = json.loads(Path(tmp, "res.json").read_text())
+        rows = result_rows(Path(tmp, "res.json"))
         lesson, stage = argv[1], int(argv[3])
         assert rows and all(row["lesson"] == lesson and row["stage"] == stage for row in rows), context
         assert (r.returncode == 0) == all(row["passed"] for row in rows), context

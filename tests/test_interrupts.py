@@ -1,6 +1,6 @@
-"""Ctrl-C and SIGTERM during a run: the recording is finalised and readable, the results so
-far are written, and the exit code says what happened (130 / 143)."""
-import json
+"""Ctrl-C, SIGTERM and SIGHUP during a run: the recording and the results so far are finalised,
+written beside (never over) the complete files of an earlier run and marked partial, and the
+exit code says what happened (128 + the signal: 130 / 143 / 129)."""
 import os
 import signal
 import subprocess
@@ -9,13 +9,17 @@ import time
 
 import pytest
 
-from engine.recorder import summarize
+from engine.recorder import run_status, summarize
+from lessons.output import read_results
 from tests.helpers import ROOT
 
 
-@pytest.mark.parametrize("sig,code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
-def test_signal_during_run_finalises_recording_and_results(tmp_path, sig, code):
+@pytest.mark.parametrize("sig,code", [(signal.SIGINT, 130), (signal.SIGTERM, 143), (signal.SIGHUP, 129)])
+def test_signal_during_run_finalises_partial_output_beside_the_earlier_files(tmp_path, sig, code):
     env = dict(os.environ, PYTHONPATH=str(ROOT), ELASTIC_CACHE_DIR=str(ROOT / ".ti_cache"))
+    earlier = {"r.rrd": b"an earlier complete recording", "res.json": b'{"complete": true, "experiments": []}'}
+    for name, data in earlier.items():
+        (tmp_path / name).write_bytes(data)
     # Stage 1 is quick and produces results; a huge stage-3 run keeps it busy afterwards.
     proc = subprocess.Popen(
         [sys.executable, "-m", "lessons", "run", "rod-waves", "--cfl-steps", "10000000",
@@ -28,17 +32,25 @@ def test_signal_during_run_finalises_recording_and_results(tmp_path, sig, code):
         seen.append(line)
         if "stage 3/4" in line:
             break
-    time.sleep(1.0)
+    time.sleep(0.5)  # inside stage 3's long run
     proc.send_signal(sig)
     out, _ = proc.communicate(timeout=120)
     assert proc.returncode == code, "".join(seen) + out
-    assert (tmp_path / "r.rrd").exists() and not list(tmp_path.glob(".*partial*"))
-    info = summarize(tmp_path / "r.rrd")
+    for name, data in earlier.items():  # the complete files of the earlier run are untouched
+        assert (tmp_path / name).read_bytes() == data
+    assert not list(tmp_path.glob(".*partial*"))  # no temporary file left
+    info = summarize(tmp_path / "r.partial.rrd")
     assert "/stage1/results" in info and "/stage3/narrative" in info
-    rows = json.loads((tmp_path / "res.json").read_text())
-    assert {r["stage"] for r in rows} >= {1, 2}
+    status = run_status(tmp_path / "r.partial.rrd")
+    assert status["complete"] is False and status["exit_code"] == code
+    assert status["stages_requested"] == [1, 2, 3, 4] and status["stages_completed"] == [1, 2]
+    doc = read_results(tmp_path / "res.partial.json")
+    assert doc["complete"] is False and doc["exit_code"] == code and signal.Signals(sig).name in doc["exit_reason"]
+    assert doc["stages_completed"] == {"rod-waves": [1, 2]}
+    assert {r["stage"] for r in doc["experiments"]} == {1, 2}
+    assert "Traceback" not in out
     rerun = os.path.join(os.path.dirname(sys.executable), "rerun")
-    verify = subprocess.run([rerun, "rrd", "verify", str(tmp_path / "r.rrd")],
+    verify = subprocess.run([rerun, "rrd", "verify", str(tmp_path / "r.partial.rrd")],
                             capture_output=True, text=True)
     assert verify.returncode == 0, verify.stderr
 
