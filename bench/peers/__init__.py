@@ -134,13 +134,15 @@ def check_step_args(n: int, x, v, dt, n_steps):
     return dt, n_steps
 
 
-def compare_explicit(sides=(64, 128, 256), rounds: int = 5, seconds: float = 0.25, dt: float = 1e-5):
+def compare_explicit(sides=(64, 128, 256), rounds: int = 5, seconds: float = 0.25, dt: float = 1e-5,
+                     numba_one_thread: bool = False):
     """Engine, Numba and Warp on the same cloth in one process, interleaved: per round, per side and
     model (springs+bending, springs), each implementation in turn steps its own copy of the bench's
     start state one step per call (as the timed bodies do) for ``seconds``; returns rows
-    {side, n, model, impl, ns_per_vertex_step (median over rounds), spread (max/min over rounds),
+    {side, n, model, impl, ns_per_vertex_step (median over rounds), min, spread (max/min over rounds),
     samples}.  The engine's precision and threads are the runtime's (ELASTIC_FP, ELASTIC_THREADS);
-    the peers run in the same precision, Numba with ELASTIC_THREADS threads, Warp on one."""
+    the peers run in the same precision, Numba with ELASTIC_THREADS threads, Warp on one
+    (``numba_one_thread``: also Numba on one thread, impl "numba-t1")."""
     import time
 
     import numpy as np
@@ -171,6 +173,10 @@ def compare_explicit(sides=(64, 128, 256), rounds: int = 5, seconds: float = 0.2
                 p = NumbaCloth(c.model, c.springs, c.bending if bending else None, dtype=dtype)
                 x, v = x0.astype(dtype), v0.astype(dtype)
                 runners[side, model, "numba"] = (c.model.n, lambda p=p, x=x, v=v: p.step(x, v, dt, 1))
+                if numba_one_thread:
+                    p1 = NumbaCloth(c.model, c.springs, c.bending if bending else None, dtype=dtype, threads=1)
+                    x1, v1 = x0.astype(dtype), v0.astype(dtype)
+                    runners[side, model, "numba-t1"] = (c.model.n, lambda p=p1, x=x1, v=v1: p.step(x, v, dt, 1))
             if "warp" in impls:
                 from bench.peers.warp_cloth import WarpCloth
                 w = WarpCloth(c.model, c.springs, c.bending if bending else None, dtype=dtype)
@@ -193,7 +199,8 @@ def compare_explicit(sides=(64, 128, 256), rounds: int = 5, seconds: float = 0.2
     rows = []
     for (side, model, impl), s in samples.items():
         rows.append(dict(side=side, n=runners[side, model, impl][0], model=model, impl=impl,
-                         ns_per_vertex_step=float(np.median(s)), spread=float(max(s) / min(s)), samples=s))
+                         ns_per_vertex_step=float(np.median(s)), min=float(min(s)), spread=float(max(s) / min(s)),
+                         samples=s))
     return rows
 
 

@@ -24,9 +24,11 @@ does not import numba, to plain functions at module level, so that numba's on-di
 compiles for several seconds per precision; a cached one loads in well under a second.  The
 per-element helpers are inlined into the ``prange`` loops at numba's IR level
 (``inline="always"``): that doubles the compile time but runs the step 1.4-1.8x faster than
-calling them as separate compiled functions (measured at sides 64 and 128, one thread).  Threads: ``numba.set_num_threads`` from ``ELASTIC_THREADS`` (default 2).  Precision:
-``dtype`` float64 or float32; every constant is passed in that dtype so that float32 runs in
-float32 (a float64 literal would promote the arithmetic).
+calling them as separate compiled functions (measured at sides 64 and 128, one thread).
+
+Threads: ``numba.set_num_threads`` from ``ELASTIC_THREADS`` (default 2), set before each call.
+Precision: ``dtype`` float64 or float32; every constant is passed in that dtype so that float32 runs
+in float32 (a float64 literal would promote the arithmetic).
 """
 import math
 

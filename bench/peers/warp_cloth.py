@@ -213,6 +213,8 @@ class WarpCloth:
     def advance(self, dt: float, n_steps: int = 1) -> None:
         """``n_steps`` symplectic-Euler steps of the Warp state (3 launches each; CPU launches return
         when done)."""
+        if not (math.isfinite(dt) and dt > 0.0):
+            raise ValueError(f"dt must be finite and > 0 (got {dt!r})")
         if self._cmds is None or dt != self._dt:
             self._record(dt)
         for _ in range(n_steps):
