@@ -812,10 +812,10 @@ class Recorder(NullRecorder):
             if self._stream is not None:
                 try:
                     data = self._stream.read(flush=False)
-                except Exception:  # nothing readable: treated as an empty recording
+                except Exception:  # nothing readable: no file is written (an earlier one is kept)
                     data = None
             if self.output is not None:
-                if keep and data:
+                if keep and data is not None:
                     self.output.write_bytes(data)  # raises OutputWriteError (temporary file removed)
                     complete = True if status is None else bool(status.get("complete"))
                     self.written = self.output.commit(complete)
