@@ -207,16 +207,16 @@ def test_explicit_step_peer(benchmark, side, model, impl):
 
         def run():
             peer.step(x, v, DT, 1)
-        threads = peer.threads
+        threads, layer = peer.threads, peer.layer
     else:
         peer.load(x, v)
         peer.advance(DT, 1)                    # compile or load from the cache, record the launches
 
         def run():
             peer.advance(DT, 1)                # CPU launches return when done
-        threads = 1
+        threads, layer = 1, "warp cpu (serial)"
     measure(benchmark, run, group="cloth-explicit-step", impl=impl, model=model, kernel="explicit_step",
             bytes=traffic.kernel_bytes("explicit_step", info["n"], info["m"], info["h"], dtype.itemsize),
-            peer_threads=threads, **info)
+            peer_threads=threads, peer_layer=layer, **info)
     final = x if impl == "numba" else peer.numpy()[0]
     assert np.all(np.isfinite(final))

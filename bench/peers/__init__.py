@@ -157,6 +157,7 @@ def compare_explicit(sides=(64, 128, 256), rounds: int = 5, seconds: float = 0.2
     dtype = np.dtype(float_dtype())
     impls = ["engine"] + [name for name in PACKAGES if missing(name) is None]
     runners = {}
+    numba_peer = None
     for side in sides:
         for model, bending in (("springs+bending", True), ("springs", False)):
             c = config.cloth_scene(side, bending)
@@ -170,7 +171,7 @@ def compare_explicit(sides=(64, 128, 256), rounds: int = 5, seconds: float = 0.2
             runners[side, model, "engine"] = (c.model.n, engine)
             if "numba" in impls:
                 from bench.peers.numba_cloth import NumbaCloth
-                p = NumbaCloth(c.model, c.springs, c.bending if bending else None, dtype=dtype)
+                p = numba_peer = NumbaCloth(c.model, c.springs, c.bending if bending else None, dtype=dtype)
                 x, v = x0.astype(dtype), v0.astype(dtype)
                 runners[side, model, "numba"] = (c.model.n, lambda p=p, x=x, v=v: p.step(x, v, dt, 1))
                 if numba_one_thread:
@@ -196,9 +197,11 @@ def compare_explicit(sides=(64, 128, 256), rounds: int = 5, seconds: float = 0.2
                 if t >= seconds:
                     break
             samples[key].append(t / calls / n * 1e9)
+    layer = numba_peer.layer if numba_peer is not None else ""
     rows = []
     for (side, model, impl), s in samples.items():
         rows.append(dict(side=side, n=runners[side, model, impl][0], model=model, impl=impl,
+                         layer=layer if impl.startswith("numba") else "",
                          ns_per_vertex_step=float(np.median(s)), min=float(min(s)), spread=float(max(s) / min(s)),
                          samples=s))
     return rows

@@ -27,6 +27,11 @@ per-element helpers are inlined into the ``prange`` loops at numba's IR level
 calling them as separate compiled functions (measured at sides 64 and 128, one thread).
 
 Threads: ``numba.set_num_threads`` from ``ELASTIC_THREADS`` (default 2), set before each call.
+Numba picks its threading layer itself (here "omp", GNU libgomp, whose idle threads spin before they
+sleep).  On an oversubscribed machine (more runnable threads than cores) a spinning thread holds a
+core that its partner needs to reach the next barrier, and the two-thread step becomes 3-30x slower
+than the one-thread one; ``OMP_WAIT_POLICY=PASSIVE`` or ``NUMBA_THREADING_LAYER=workqueue`` avoid
+that.  The peer leaves the choice to the environment and reports it (:attr:`NumbaCloth.layer`).
 Precision: ``dtype`` float64 or float32; every constant is passed in that dtype so that float32 runs
 in float32 (a float64 literal would promote the arithmetic).
 """
@@ -197,6 +202,19 @@ class NumbaCloth:
         self.fh = np.zeros((max(self.n_hinges, 1), 4, 3), dtype=self.dtype)
         self._gather = (a["offsets"], a["inc_other"], a["inc_inv_L"], a["inc_c_over_L"], a["hinges"], a["k"],
                         a["theta_bar"], self.fh, a["h_offsets"], a["h_entries"], a["with_hinges"], self.cst)
+
+    @property
+    def layer(self) -> str:
+        """Numba's threading layer and OpenMP wait policy, e.g. "omp (OMP_WAIT_POLICY unset)" (after
+        the first step or forces call; "not started" before)."""
+        import os
+        try:
+            name = self._numba.threading_layer()
+        except ValueError:
+            return "not started"
+        if name == "omp":
+            name += f" (OMP_WAIT_POLICY {os.environ.get('OMP_WAIT_POLICY') or 'unset'})"
+        return name
 
     def _threads(self):
         if self._numba.get_num_threads() != self.threads:
