@@ -61,10 +61,12 @@ def test_stage4_reflection_and_transmission(stages):
 
 
 def test_a_too_narrow_pulse_fails_honestly():
-    """A too-narrow pulse is dispersive: the speed claim must then fail, not be hidden."""
+    """A too-narrow pulse (2 node spacings) is dispersive: the speed claim must then fail, not be
+    hidden, and say why."""
     s = run_stage(LESSON, 2, width=2.0)
     assert not s["pulse-speed-nu0.25"].passed
     assert not math.isnan(s["pulse-speed-nu0.25"].measured)
+    assert "grid dispersion" in s["pulse-speed-nu0.25"].reason
 
 
 # ------------------------------------------------------------------------------------------

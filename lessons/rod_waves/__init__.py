@@ -20,18 +20,38 @@ class RodWavesConfig:
     rho: float = param(1.0, "linear density of the rod", "kg/m", ge=1e-6, le=1e6)
     nodes: int = param(1001, "nodes on the rod of rest length 1 m (h = 1/(nodes-1))", ge=101, le=200001)
     cfl: float = param(0.5, "CFL number nu = c dt / h for runs that do not sweep it", gt=0, le=1000)
-    width: float = param(10.0, "Gaussian pulse width sigma, in node spacings", ge=2, le=100)
-    amplitude: float = param(1e-3, "pulse amplitude (displacement)", "m", gt=0, le=0.01)
+    width: float = param(None, "Gaussian pulse width sigma, in node spacings (default: 1 cm, i.e. 10 spacings at the "
+                         "default 1001 nodes and more on finer grids, where a fixed count of spacings would disperse "
+                         "over the more spacings it travels; at least 10 spacings on grids coarser than 1 mm; under "
+                         "about 5 spacings the grid slows the pulse measurably and the speed claims fail, saying so)",
+                         ge=2, le=100, optional=True)
+    amplitude: float = param(1e-3, "pulse amplitude (displacement; at least 1e-9 m: positions are stored as "
+                             "p + u, which resolves u only to about 1e-16 m on the 1 m rod)", "m", ge=1e-9, le=0.01)
     cfl_steps: int = param(10_000, "steps a run must survive to count as stable in stage 3", ge=100, le=10**7)
     record_every: int = param(20, "observe the scene runs every k-th step (the steps between "
-                             "observations; the recording draws its own frames, about 200 per run, whatever k is)", ge=1)
+                             "observations; the recording draws its own frames, about 200 per run, whatever k is; "
+                             f"stage 2's speed fits need at least {stages.MIN_FIT_POINTS} observations while "
+                             "the pulse crosses the middle of the rod)", ge=1)
 
     def validate(self):
         h = 1.0 / (self.nodes - 1)
-        if self.width * h > 0.05:
+        sigma = stages.pulse_width(self, h)
+        if sigma > 0.05 and self.width is not None:
             raise ParameterError(
                 f"--width must be <= {0.05 / h:.3g} node spacings for --nodes {self.nodes} "
                 f"(the pulse must be narrow next to the 1 m rod; got {self.width})")
+        if sigma > 0.05:
+            raise ParameterError(
+                f"--nodes {self.nodes}: the default pulse width, 10 node spacings = {sigma:g} m, is more than 0.05 m "
+                f"(the pulse must be narrow next to the 1 m rod); use --nodes >= 201 or --width <= {0.05 / h:.3g}")
+        fewest = stages.fewest_fit_points(self)
+        if fewest < stages.MIN_FIT_POINTS:
+            raise ParameterError(
+                f"--record-every {self.record_every} leaves {fewest} observation(s) in a speed fit of stage 2 "
+                f"(the pulse at nu = 1 crosses the middle of the rod in {stages.fit_window_steps(self)} steps at "
+                f"--nodes {self.nodes}); a fit needs at least {stages.MIN_FIT_POINTS}: use --record-every <= "
+                f"{stages.largest_record_every(self)}")
+        stages.check_work(self)
 
 
 LESSON = Lesson(
