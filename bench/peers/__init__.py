@@ -1,4 +1,6 @@
-"""Peers of the engine's explicit cloth step: what a user could write with a pip-installable JIT.
+"""Peers of the engine: what a user could install with pip and write instead.
+
+The implicit step's linear solvers are in :mod:`bench.peers.sparse`.  The explicit cloth step:
 
 * :mod:`bench.peers.numba_cloth` - :class:`~bench.peers.numba_cloth.NumbaCloth`, ``numba.njit(parallel=True)``
   kernels with ``prange`` (``ELASTIC_THREADS`` threads, default 2);
