@@ -413,7 +413,9 @@ def test_bridson_force_ratio_to_notes_force(theta):
     assert np.abs(fb - ratio * fn).max() < 1e-15 * np.abs(fn).max()    # parallel forces
     assert ratio == pytest.approx(2 * math.sin(theta / 2) / theta, rel=1e-14)   # (R1)
     series = 1 - theta ** 2 / 24
-    # the two-term series is short by theta^4/1920 (next term -theta^6/322560)
+    # identities once the ratio above holds (the Taylor series of 2 sin(theta/2)/theta), kept to show the
+    # size of the small-angle form's error: the two-term series is short by theta^4/1920 (next term
+    # -theta^6/322560)
     assert ratio - series == pytest.approx(theta ** 4 / 1920, rel=0.01)
     assert abs(ratio - series) < 5.3e-4  # 3.3e-5 at 0.5 rad, 5.2e-4 at 1 rad
     # discrete shells: same direction, 3x the notes' stiffness
@@ -421,23 +423,91 @@ def test_bridson_force_ratio_to_notes_force(theta):
     assert np.abs(fd - 3 * fn).max() < 1e-14 * np.abs(fn).max()
 
 
-def test_bridson_force_is_bridsons_formula():
-    # F_i = k |E|^2/(|N1|+|N2|) sin(theta/2) u_i with Bridson's k = B/3, theta_bar = 0
+def _bridson_literal(X, H, k):
+    """Bridson et al. 2003's elastic bending force as written: F_i = k |E|^2/(|N1|+|N2|) sin(theta/2) u_i
+    with |E|, |N1|, |N2|, theta and the u_i all of the current shape X (theta_bar = 0); (h, 4, 3) in
+    slot order (v0, v1, w0, w1), the u_i from the engine's literal kernel."""
     import taichi as ti
+    probe = BendingEnergy(X, H, 1.0)  # only for its hinge ndarray and angles
+    u = ti.ndarray(dtype=ti.math.vec3, shape=(len(H), 4))
+    bm.bridson_u_kernel(vec3_ndarray(len(X), X), probe.hinges, u)
+    geo = geometry.hinge_geometry(X, np.asarray(H))
+    coef = geo["edge_length"] ** 2 / (2 * (geo["A0"] + geo["A1"]))  # |E|^2/(|N1|+|N2|) now
+    return k * (coef * np.sin(probe.angles(X) / 2))[:, None, None] * u.to_numpy(), coef
+
+
+def test_bridson_variant_is_bridsons_formula_with_the_coefficient_of_the_rest_mesh():
+    """Where the hinge keeps its rest |E| and wing areas (it only bends), the variant's force is
+    Bridson's literal formula with his k = B/3: the frozen coefficient equals the current one.
+    (This alone cannot tell the two apart: see the stretched hinge below.)"""
     rng = np.random.default_rng(12)
     X, H = random_hinges(rng, 20, max_angle=3.0)
     B = 0.9
     rest = X.copy()
-    rest[3::4] = rest[0::4] + rest[1::4] - rest[2::4]  # flat rest (w1 = reflection of w0 through edge midpoint)
+    # a rest shape with the same edge and wing areas as X: w1 turned about the edge into the plane of w0
+    e = X[1::4] - X[0::4]
+    e_hat = e / np.linalg.norm(e, axis=1, keepdims=True)
+    for i, (v0, w0, w1, eh) in enumerate(zip(X[0::4], X[2::4], X[3::4], e_hat)):
+        a0, a1 = w0 - v0, w1 - v0
+        perp0 = a0 - (a0 @ eh) * eh
+        rest[4 * i + 3] = v0 + (a1 @ eh) * eh - perp0 / np.linalg.norm(perp0) * np.linalg.norm(a1 - (a1 @ eh) * eh)
+    E = BendingEnergy(rest, H, B, "bridson")
+    literal, coef = _bridson_literal(X, H, B / 3)
+    geo = E.geometry
+    assert np.allclose(coef, geo["edge_length"] ** 2 / (2 * (geo["A0"] + geo["A1"])), rtol=1e-12)
+    f = E.hinge_forces(X)
+    assert np.abs(f - literal).max() < 1e-12 * np.abs(f).max()
+
+
+def test_bridson_variant_on_a_stretched_hinge_is_conservative_and_differs_from_the_literal_force():
+    """On a hinge whose edge is 10% longer and whose wings are 10% lower than at rest, Bridson's
+    coefficient |E|^2/(|N1|+|N2|) = |E|/(h0+h1) is 1.21 x its rest value. The variant keeps the
+    rest value: its force is minus the gradient of 4 k_e (1 - cos(theta/2)) (central differences)
+    and its Jacobian is symmetric; the literal force is 1.21 x larger and has no energy (its
+    Jacobian is not symmetric)."""
+    rng = np.random.default_rng(5)
+    bent = []
+    for _ in range(6):
+        L = rng.uniform(0.8, 1.2)
+        kw = dict(L=L, p0=rng.uniform(0.1, 0.9) * L, r0=rng.uniform(0.5, 1.0) * L, p1=rng.uniform(0.1, 0.9) * L,
+                  r1=rng.uniform(0.5, 1.0) * L)
+        rest = analytic_hinge(0.0, **kw)
+        x = analytic_hinge(rng.uniform(0.6, 1.6), **kw)
+        x[:, 0] *= 1.1          # the edge 10% longer
+        x[:, 1:] /= 1.1         # the wings 10% lower
+        Q, t = random_rotation(rng), rng.normal(size=3)
+        bent.append((x @ Q.T + t, rest @ Q.T + t))
+    X = np.concatenate([b[0] for b in bent])
+    rest = np.concatenate([b[1] for b in bent])
+    H = np.arange(len(X)).reshape(-1, 4)
+    B = 0.9
     E = BendingEnergy(rest, H, B, "bridson")
     f = E.hinge_forces(X)
-    u = ti.ndarray(dtype=ti.math.vec3, shape=(len(H), 4))
-    bm.bridson_u_kernel(vec3_ndarray(len(X), X), E.hinges, u)
-    u = u.to_numpy()
+    # conservative: minus the gradient of the variant's own energy (W2) with k_e frozen at rest
+    f_fd = -per_hinge_fd(E.hinge_energies, X)
+    assert rel(f, f_fd) < 1e-7
+    literal, coef = _bridson_literal(X, H, B / 3)
     geo = E.geometry
-    N1N2 = 2 * (geo["A0"] + geo["A1"])  # |N1| + |N2| on the rest mesh (k_e uses rest quantities)
-    F = (B / 3) * geo["edge_length"] ** 2 / N1N2 * np.sin(E.angles(X) / 2)
-    assert np.abs(f - F[:, None, None] * u).max() < 1e-13 * np.abs(f).max()
+    ratio = coef / (geo["edge_length"] ** 2 / (2 * (geo["A0"] + geo["A1"])))
+    assert np.allclose(ratio, 1.21, rtol=1e-12)
+    assert np.abs(literal - ratio[:, None, None] * f).max() < 1e-12 * np.abs(literal).max()  # parallel, 1.21 x
+    assert rel(f, literal) == pytest.approx(1 - 1 / 1.21, rel=1e-9)  # 17% of the literal force
+
+    def jacobian(force, i):
+        """12 x 12 central-difference Jacobian of hinge i's four forces."""
+        J = np.zeros((12, 12))
+        for a in range(4):
+            for c in range(3):
+                Xp, Xm = X.copy(), X.copy()
+                Xp[4 * i + a, c] += 1e-6
+                Xm[4 * i + a, c] -= 1e-6
+                J[:, 3 * a + c] = (force(Xp)[i] - force(Xm)[i]).reshape(12) / 2e-6
+        return J
+
+    asym = lambda J: np.linalg.norm(J - J.T) / np.linalg.norm(J)
+    for i in range(len(H)):
+        assert asym(jacobian(E.hinge_forces, i)) < 1e-6      # a Hessian: symmetric
+        assert asym(jacobian(lambda Y: _bridson_literal(Y, H, B / 3)[0], i)) > 0.1  # measured 0.48-0.62: no energy has it
 
 
 def test_cylinder_curvature_estimate_converges_to_one_over_2R():

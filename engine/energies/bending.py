@@ -30,16 +30,24 @@ with A0 + A1 = |e| (h0 + h1) / 2):
     discrete-shells:   k_e = B |e|^2 / (4 (A0 + A1)) = B |e| / (2 (h0 + h1)) = 3 x (K1)  (K2)
 
 (K2) is Discrete Shells' weight with its constant chosen so that B is the same bending
-modulus: on a cylinder of radius R it converges to the continuum 1/2 B (1/(2R))^2 * area,
-while (K1) converges to one third of it (only the edges across the bend carry curvature
-but A_e gives each edge a third of its triangles' area).
+modulus. On a cylinder of radius R meshed by a right-triangle grid aligned with the axis (or
+an equilateral lattice at any orientation) (K1) converges to one third of the continuum
+1/2 B (1/(2R))^2 * area (only the edges across the bend carry curvature but A_e gives each
+edge a third of its triangles' area) and (K2), being 3 x (K1) hinge by hinge, to the continuum.
+On a grid turned by a against the axis both are off by the same factor: (K1) gives
+(1 - sin 2a + sin^2 2a)/3 of the continuum and (K2) three times that (0.75 at 15 degrees, 3 at
+-45 degrees); lessons/bending stage 3 measures both.
 
 The "bridson" variant: (W2) has the force  -dW/dx = 2 k_e sin(d/2) u  with u = -grad theta
-equal to Bridson's u_1..u_4.  With theta_bar = 0 and k_e from (K1) that is exactly Bridson's
-elastic bending force  k |E|^2/(|N1|+|N2|) sin(theta/2) u_i  with his k = B/3 (because
+equal to Bridson's u_1..u_4.  With theta_bar = 0 and k_e from (K1) that is Bridson's elastic
+bending force  k |E|^2/(|N1|+|N2|) sin(theta/2) u_i  with his k = B/3 (because
 |N1| + |N2| = |e| (h0 + h1)) and the coefficient |E|^2/(|N1|+|N2|) frozen at its rest value
-(the notes' rule: everything but theta measured on the rest mesh); so frozen, Bridson's
-force is exactly -grad of (W2).
+(the notes' rule: everything but theta measured on the rest mesh); so frozen, the force is
+exactly -grad of (W2): conservative.  It is NOT Bridson et al.'s literal force, which takes
+the coefficient from the current shape: the two agree while a hinge keeps its rest edge
+length and wing areas and differ by the ratio of the coefficients otherwise (1.21 on a hinge
+10% longer along its edge and 10% lower across it), and the literal force is the gradient of
+no energy (its Jacobian is not symmetric); tests/test_bending_energy.py measures both.
 For a rest angle we use sin((theta - theta_bar)/2) (Bridson writes sin(theta/2) -
 sin(theta_bar/2); the two agree to first order in the deviation).  Compared with the
 notes' force k_e theta u, the force ratio at theta_bar = 0 is

@@ -187,7 +187,8 @@ def _rigid_motion_errors(energy, X, f, rng):
 
 
 def _half_angle_experiments(notes):
-    """Bridson's sin(theta/2) force against the notes' theta force at 0.5 and 1 rad."""
+    """The bridson variant's sin(theta/2) force against the notes' theta force at 0.5 and 1 rad (both
+    from the engine), and the small-angle form of their ratio (an identity once the ratio holds)."""
     bridson = BendingEnergy(analytic_hinge(0.0), np.array([[0, 1, 2, 3]]), 1.0, "bridson")
     exps = []
     for th in (0.5, 1.0):
@@ -197,8 +198,9 @@ def _half_angle_experiments(notes):
         exps += [
             Experiment(f"theta = {th}: Bridson/notes force ratio equals 2 sin(theta/2)/theta",
                        2 * math.sin(th / 2) / th, ratio, 1e-12, "rel", id=f"bridson-ratio-theta{th}"),
-            Experiment(f"theta = {th}: force ratio equals 1 - theta^2/24 within the truncation error theta^4/1920",
-                       1 - th ** 2 / 24, ratio, th ** 4 / 1920, "abs", id=f"bridson-ratio-series-theta{th}"),
+            Experiment(f"theta = {th}: identity (Taylor, once the ratio above holds): that ratio is "
+                       f"1 - theta^2/24 within theta^4/1920", 1 - th ** 2 / 24, ratio, th ** 4 / 1920, "abs",
+                       id=f"bridson-ratio-series-theta{th}"),
         ]
     return exps
 
@@ -265,7 +267,7 @@ def _curvature_estimates(ctx, kind, label, levels=(9, 17, 33)):
                 Experiment(f"{label}, n = {n}: theta/(h1+h2) with the bent hinge's heights -> 1/(2R)",
                            1 / (2 * R), float(est_bent.mean()), 1e-3, "rel", "1/m", id=f"{kind}-curvature-estimate"),
                 Experiment(f"{label}, n = {n}: with the rest heights the estimate is exact (max rel. error)",
-                           0.0, float(np.abs(est_rest * 2 * R - 1).max()), 1e-12, "abs",
+                           0.0, float(np.abs(est_rest * 2 * R - 1).max()), _rest_heights_tolerance(R, n), "abs",
                            id=f"{kind}-rest-heights-exact"),
                 Experiment(f"{label}: the other hinges are flat (max |theta|)", 0.0,
                            float(np.abs(theta[~across]).max()), 1e-12, "abs", "rad", id=f"{kind}-other-hinges-flat"),
@@ -279,6 +281,13 @@ def _curvature_estimates(ctx, kind, label, levels=(9, 17, 33)):
     exps.append(Experiment(f"{label}: chord-height estimate converges at order 2 in h", 2.0,
                            convergence_order(np.array(hs), np.array(chord_err)), 0.05, "abs", id=f"{kind}-chord-order"))
     return exps
+
+
+def _rest_heights_tolerance(R: float, n: int) -> float:
+    """Round-off of the exact estimate: theta ~ h/R is a second difference of positions of size R
+    (h = 1/(n - 1) the spacing), so its relative round-off is about eps (R/h)^2; 4 eps (R/h)^2, and
+    at least 1e-12 (measured: 2.3e-12 .. 2.9e-12 at R = 3, 2.6e-10 .. 3.1e-10 at R = 30, n = 33)."""
+    return max(1e-12, 4 * np.finfo(np.float64).eps * (R * (n - 1)) ** 2)
 
 
 def _energy_scaling(cfg):
@@ -362,8 +371,8 @@ def _regular_ratio(ctx, kind, angle, label, slug, levels):
     exps = [Experiment(f"{label}: notes / continuum, extrapolated to h -> 0", theory, extrapolated, 1e-3, "rel",
                        id=f"{slug}-ratio-extrapolated")]
     if kind == "grid" and angle == 0.0:
-        exps.append(Experiment(f"{label}: notes / continuum at the finest level (n = {nf})", 1 / 3, r[0], 1e-2, "rel",
-                               id=f"{slug}-ratio-finest"))
+        exps.append(Experiment(f"{label}: notes / continuum at the finest level (n = {nf})", 1 / 3, r[0],
+                               finest_tolerance(nf), "rel", id=f"{slug}-ratio-finest"))
         h = np.array([1.0 / (n - 1) for n in levels])
         exps.append(Experiment(f"{label}: the ratio's error shrinks at order 1 (the free-edge strip)", 1.0,
                                convergence_order(h, np.abs(np.array(r) - theory)), 0.05, "abs",
@@ -374,12 +383,49 @@ def _regular_ratio(ctx, kind, angle, label, slug, levels):
         log_sheet(ctx, f"{kind}_{angle:g}deg", f"{short}, notes' energy", x, flat.triangles, energy)
     if (kind, angle) in (("grid", 0.0), ("grid", 45.0), ("lattice", 0.0)):
         ds, flat, energy, x = sheet_ratio(cfg, kind, nf, angle, variant="discrete-shells")
-        exps.append(Experiment(f"{label}: Discrete Shells / continuum at the finest level (n = {nf})", 1.0, ds, 1e-2,
-                               "rel", id=f"{slug}-discrete-shells-ratio"))
+        exps.append(Experiment(f"{label}: Discrete Shells / continuum at the finest level (n = {nf})", 1.0, ds,
+                               finest_tolerance(nf), "rel", id=f"{slug}-discrete-shells-ratio"))
         if kind == "grid" and angle == 0.0 and ctx.rec.enabled:
             _, flat, energy, x = sheet_ratio(cfg, kind, levels[1], angle, variant="discrete-shells")
             log_sheet(ctx, f"{kind}_{angle:g}deg_discrete-shells", f"{short}, Discrete Shells", x,
                       flat.triangles, energy)
+    elif (kind, angle) in DS_TURNED:
+        exps += _discrete_shells_turned(ctx, kind, angle, label, slug, sheets, levels)
+    return exps
+
+
+def finest_tolerance(n: int) -> float:
+    """Tolerance of the finest-level ratios: 1%, or 1.25 h where the free-edge strip, which costs
+    the aligned meshes h = 1/(n - 1) of their ratio (stage 3's narrative), is larger (n < 126)."""
+    return max(1e-2, 1.25 / (n - 1))
+
+
+# Discrete Shells on turned meshes: the claim of its fix measured where the aligned meshes cannot tell
+DS_TURNED = (("grid", 15.0), ("grid", 30.0), ("grid", -45.0), ("lattice", 15.0))
+
+
+def _discrete_shells_turned(ctx, kind, angle, label, slug, sheets, levels):
+    """Discrete Shells' weight is three times the notes' on every hinge (K2 = 3 x K1), so its ratio
+    is three times the notes' closed form on every regular mesh: 1 only where that is 1/3 (the
+    aligned grids, the equilateral lattice), 0.75 on the grid at 15 deg and 3 at -45 deg. Measured
+    with its own energy on the same three sheets as the notes' ratio, extrapolated the same way."""
+    r = [BendingEnergy(meshes.embed_3d(flat).vertices, flat.hinges, 1.0, "discrete-shells").energy(x)
+         / continuum_energy(1.0, ctx.cfg.radius, flat.total_measure) for _, flat, _, x in sheets]
+    extrapolated = 2 * r[0] - r[1]
+    theory = 3 * closed_form_ratio(kind, angle)
+    ctx.progress(f"{label}: Discrete Shells W/W_cont = " + ", ".join(f"{v:.5f} (n={n})" for v, n in zip(r, levels))
+                 + f"; extrapolated {extrapolated:.5f}; 3 x the notes' closed form {theory:.5f}")
+    _, flat, notes, x = sheets[-1]  # the coarsest sheet: the hinge-by-hinge relation behind it
+    ds = BendingEnergy(meshes.embed_3d(flat).vertices, flat.hinges, 1.0, "discrete-shells")
+    Wn, Wd = notes.hinge_energies(x), ds.hinge_energies(x)
+    bent = Wn > 1e-12 * Wn.max()
+    exps = [Experiment(f"{label}: Discrete Shells / continuum, extrapolated to h -> 0 (3 x the notes' closed form)",
+                       theory, extrapolated, 1e-3, "rel", id=f"{slug}-discrete-shells-ratio-extrapolated")]
+    if (kind, angle) == DS_TURNED[0]:
+        exps.append(Experiment(f"identity (K2 = 3 K1): Discrete Shells' hinge energy / the notes', every bent hinge "
+                               f"of the {label} (n = {levels[-1]}; max |ratio - 3|)", 0.0,
+                               float(np.abs(Wd[bent] / Wn[bent] - 3).max()), 1e-12, "abs",
+                               id="discrete-shells-three-times-notes-identity"))
     return exps
 
 
@@ -462,7 +508,8 @@ def stage_cloth(ctx):
     for k, B in enumerate(Bs):
         scene, res = _fall_and_settle(ctx, k, B)
         exps.append(Experiment(f"B = {B:.3g}: static equilibrium reached (residual)", cfg.static_tol, res.residual,
-                               0, "<=", id=f"cloth-{CLOTHS[k]}-equilibrium"))
+                               0, "<=", id=f"cloth-{CLOTHS[k]}-equilibrium",
+                               reason="" if res.converged else f"the static solve stopped: {res.message}"))
         if not res.converged:
             ctx.progress(f"B = {B:.3g}: {res.message}")
         steps = int(round(1.0 / cfg.dt))
@@ -516,9 +563,18 @@ def _fall_and_settle(ctx, k: int, B: float):
     view = RunView(label=f"cloth, B = {B:.3g} N m", camera="front", energy=None)
     simulate(ctx, f"cloth_B{B:.3g}", model, state, cfg.dt, steps, integ, every=cfg.record_every,
              log=mesh_logger(scene.mesh.triangles, scene.bending, scale), fixed=explicit, view=view)
-    res = solve_static(model, state.x.to_numpy().astype(np.float64), tol=cfg.static_tol, max_iter=400,
-                       raise_on_failure=False)
+    res = solve_static(model, state.x.to_numpy().astype(np.float64), tol=cfg.static_tol,
+                       max_iter=newton_cap(cfg), raise_on_failure=False)
     return scene, res
+
+
+def newton_cap(cfg) -> int:
+    """Newton steps allowed for a cloth's static solve: 400 up to the default stiffness against weight
+    E/(rho g L) (1019), then growing like its square root. The steps a stiff sheet needs grow with it
+    (measured for the softest cloth of the sweep: 103 steps at 1019, 786 at 1.0e5, about its 0.44th
+    power), so the fixed cap of 400 made --cloth-E 1e5 fail; this one keeps 5x headroom there."""
+    stiffness = cfg.cloth_E / (cfg.cloth_rho * G)
+    return int(400 * max(1.0, math.sqrt(stiffness / (1e3 / (0.1 * G)))))
 
 
 def _pin_reactions(cfg, model, res, B):
@@ -538,11 +594,14 @@ def _pin_reactions(cfg, model, res, B):
 
 # ------------------------------------------------------------------------- stage 5
 
+SHELL_RADIUS = 0.5  # m
+
+
 class _Shell:
     """Half a cylinder (an arch of radius 0.5 m and length 1 m) standing on its pinned straight
     edges, with rest angles from its curved mesh."""
 
-    R, length = 0.5, 1.0
+    R, length = SHELL_RADIUS, 1.0
 
     def __init__(self, cfg):
         self.cfg = cfg
@@ -564,16 +623,18 @@ def stage_shell(ctx):
     cfg = ctx.cfg
     shell = _Shell(cfg)
     exps = _rest_shape(cfg, shell)
-    residuals = []
-    exps += _linear_response(ctx, shell, residuals)
+    solves = []
+    exps += _linear_response(ctx, shell, solves)
     # the push, then the release (a run without load: backward Euler unless --integrator says otherwise)
     model, energy = shell.under(cfg.push * G)
     pushed = solve_static(model, tol=cfg.static_tol, max_iter=200, raise_on_failure=False)
-    residuals.append(pushed.residual)
+    solves.append(pushed)
+    stopped = [r.message for r in solves if not r.converged]
     push_d = float(np.linalg.norm(pushed.x - shell.X, axis=1).max()) / shell.R
     exps += [
         Experiment("static solves (weight, 2x weight, push) reached the tolerance (max residual)", cfg.static_tol,
-                   max(residuals), 0, "<=", id="static-solves-converged"),
+                   max(r.residual for r in solves), 0, "<=", id="static-solves-converged",
+                   reason=f"a static solve stopped: {stopped[0]}" if stopped else ""),
         Experiment(f"the push ({cfg.push:g} x weight) deforms visibly (max displacement / R)", 1e-2, push_d, 0, ">=",
                    id="push-deforms"),
     ]
@@ -596,16 +657,16 @@ def _rest_shape(cfg, shell: _Shell):
     ]
 
 
-def _linear_response(ctx, shell: _Shell, residuals: list):
+def _linear_response(ctx, shell: _Shell, solves: list):
     """The shell under its own weight and twice it: a small displacement, the pins carry the
-    weight, and twice the load gives twice the displacement (the residuals go to ``residuals``).
+    weight, and twice the load gives twice the displacement (the static solves go to ``solves``).
     Drawn with the displacement magnified, both on the scale of the larger one."""
     cfg = ctx.cfg
     exps, d, shapes = [], [], []
     for factor in (1.0, 2.0):
         model, energy = shell.under(factor * G)
         res = solve_static(model, tol=cfg.static_tol, max_iter=200, raise_on_failure=False)
-        residuals.append(res.residual)
+        solves.append(res)
         d.append(float(np.linalg.norm(res.x - shell.X, axis=1).max()))
         shapes.append(res.x)
         if factor == 1.0:
