@@ -47,7 +47,7 @@ VULKAN_NEEDS = {
 }
 _WHY = {
     SPARSE: "Taichi's sparse solver (static and implicit solves) runs only on CPU and CUDA",
-    ATAN2: "its Vulkan backend has no f64 atan2/sin/cos, which the hinge angle needs",
+    ATAN2: "Taichi's Vulkan backend has no f64 atan2/sin/cos, which the hinge angle needs",
     LOOPS: "this device ends kernel loops after {limit} iterations, which cuts many-steps runs short",
 }
 
