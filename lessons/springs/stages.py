@@ -19,7 +19,7 @@ from engine import diagnostics
 from engine import mesh as meshes
 from engine.analysis import convergence_order, fit_slope
 from engine.constants import G
-from engine.errors import BlowUpError
+from engine.errors import BlowUpError, ParameterError
 from engine.integrators import get as get_integrator
 from engine.stability import stable_dt_estimate
 from engine.integrators.explicit import run_many_steps
@@ -72,6 +72,89 @@ def simulate_fused(ctx, name: str, model: Model, state, dt: float, n_steps: int,
     _, K, W = simulate_method(ctx, name, model, state, dt, n_steps, method, every, energy_bound, observe=observe,
                               log=log, fixed=fixed, view=view)
     return K, W
+
+
+# ------------------------------------------------------------------ the parameters' limits
+
+STEP_S = 1e-6        # s per step of the many-steps kernel on a chain of ~12 nodes (reference 2-thread CPU)
+LAUNCH_S = 1e-3      # s per launch of a recorded run (energies copied out, observations)
+NODE_STEP_S = 2e-8   # s per node-step of stage 4's runs on long chains (observations included)
+WORK_BUDGET_S = 3600.0  # a stage estimated to take longer than this (on the reference CPU) is refused
+MAX_LAUNCH_STEPS = 2**31 - 1  # steps one launch of the many-steps kernel can take
+WOBBLE_T = {"chain": 1.0, "frame": 0.5}  # s: the energy-wobble runs of stage 2
+
+
+def _chain_dt_stable(cfg) -> float:
+    """The engine's Gershgorin dt of the swinging chain, in closed form: every node's row of M^-1 H
+    sums to 4 k (n - 1)^2 (springs k/L with L = 1/(n - 1), masses 1/(n - 1), halved at the ends)."""
+    return 1.0 / ((cfg.chain_nodes - 1) * math.sqrt(cfg.chain_k))
+
+
+def _frame_dt_stable(cfg) -> float:
+    """The engine's Gershgorin dt of the tet frame (numpy: rows 2 (k/L) |d_a| sum_b |d_b| of each
+    spring's block (k/L) d d^T at rest, summed over a vertex's springs, over its mass)."""
+    mesh = meshes.tet_box(3, 2, 2, size=(0.2, 0.1, 0.1))
+    X, e = np.asarray(mesh.vertices), np.asarray(mesh.edges)
+    D = X[e[:, 1]] - X[e[:, 0]]
+    L = np.linalg.norm(D, axis=1)
+    d = np.abs(D / L[:, None])
+    row = 2 * (cfg.frame_k / L)[:, None] * d * d.sum(axis=1)[:, None]
+    lam = np.zeros((len(X), 3))
+    np.add.at(lam, e[:, 0], row)
+    np.add.at(lam, e[:, 1], row)
+    return 2.0 / math.sqrt(float(lam.max()) / 0.05)
+
+
+def stage2_plan(cfg) -> dict:
+    """What stage 2 steps, before it runs: the step of each network, its longest single launch, and
+    the stage's time on the reference CPU (every run at most its planned steps: forward Euler's
+    chain counted as if it never blew up, in its launches of 5 steps)."""
+    N = cfg.steps
+    dts = {"chain": cfg.dt_fraction * _chain_dt_stable(cfg), "frame": cfg.dt_fraction * _frame_dt_stable(cfg)}
+    step = {"chain": STEP_S * max(1.0, cfg.chain_nodes / 12), "frame": STEP_S}
+    seconds, longest = 0.0, 0
+    for net, dt in dts.items():
+        wobble = int(round(wobble_time(net, dt) / (dt / 2)))  # the run at dt/2 is the longer
+        longest = max(longest, wobble)
+        seconds += 2 * (N * step[net] + N / cfg.record_every * LAUNCH_S)  # the two symplectic runs
+        seconds += 2 * 1.5 * wobble * step[net]  # each method at dt and dt/2
+    seconds += N * step["chain"] + N / 5 * LAUNCH_S + 4000 * STEP_S  # forward Euler: chain, frame modes
+    return dict(dt=dts, longest=longest, seconds=seconds)
+
+
+def time_text(seconds: float) -> str:
+    return (f"{seconds / 3600:.1f} h" if seconds >= 3600 else f"{seconds / 60:.0f} min" if seconds >= 60
+            else f"{seconds:.0f} s")
+
+
+def stage4_seconds(cfg) -> float:
+    """Stage 4's time on the reference CPU: five pulse runs of about 0.9 x segments steps (dt half the
+    limit h/c, 0.45 m travelled) on chains of up to 1.5 x segments nodes."""
+    n = cfg.wave_segments
+    return 5 * (0.9 * n * 1.5 * n * NODE_STEP_S + 100 * LAUNCH_S)
+
+
+def check_work(cfg) -> None:
+    """Refuse what stage 2 cannot run (a launch past the kernel's 2^31 - 1 steps) or what would take
+    hours."""
+    plan = stage2_plan(cfg)
+    for stage, seconds, what in ((2, plan["seconds"], "fewer --steps, a larger --dt-fraction or --record-every, "
+                                  "or softer --chain-k/--frame-k"), (4, stage4_seconds(cfg), "fewer --wave-segments")):
+        if seconds > WORK_BUDGET_S:
+            raise ParameterError(
+                f"stage {stage} would take about {time_text(seconds)} on the reference 2-thread CPU with these "
+                f"parameters, over the lesson's budget of {time_text(WORK_BUDGET_S)}; use {what}")
+    if plan["longest"] > MAX_LAUNCH_STEPS:
+        raise ParameterError(
+            f"--dt-fraction {cfg.dt_fraction:g}: stage 2's energy-wobble runs would take {plan['longest']:.3g} steps "
+            f"in one launch, more than the kernel's {MAX_LAUNCH_STEPS} (use --dt-fraction >= "
+            f"{cfg.dt_fraction * plan['longest'] / MAX_LAUNCH_STEPS:.2g})")
+
+
+def announce(ctx, seconds: float) -> None:
+    if seconds > 30:
+        ctx.progress(f"this stage takes up to about {time_text(seconds)} on the reference 2-thread CPU (a progress "
+                     "bar follows each long run on a terminal)")
 
 
 # ------------------------------------------------------------------------- stage 1
@@ -232,6 +315,7 @@ ORDER = {"symplectic-euler": 1, "velocity-verlet": 2}
 
 def stage_conservation(ctx):
     cfg = ctx.cfg
+    announce(ctx, stage2_plan(cfg)["seconds"])
     exps = _fused_matches_stepwise(ctx)
     nets = {"chain": swinging_chain(cfg), "frame": tet_frame(cfg)}
     for net, (model, x0, v0) in nets.items():
@@ -341,12 +425,26 @@ def _conservation_run(ctx, net, model, x0, v0, dt, method, scale):
     what = "peak kinetic energy" if net == "chain" else "initial energy"
     exps = [Experiment(f"{net}, {method}: no drift over {N} steps (|mean E last tenth - first tenth| / {what})",
                        0.01, abs(E[-tenth:].mean() - E[:tenth].mean()) / scale, 0, "<=", id=f"{net}-{method}-no-drift")]
-    T = 1.0 if net == "chain" else 0.5
-    a1 = _wobble(ctx, f"{net}_{method}_wobble_dt", model, x0, v0, dt, T, method)
-    a2 = _wobble(ctx, f"{net}_{method}_wobble_dt/2", model, x0, v0, dt / 2, T, method)
-    ctx.progress(f"{net} {method}: energy wobble over {T} s: {a1:.4g} J at dt, {a2:.4g} J at dt/2")
+    T = wobble_time(net, dt)
+    a1, E1 = _wobble(ctx, f"{net}_{method}_wobble_dt", model, x0, v0, dt, T, method)
+    a2, E2 = _wobble(ctx, f"{net}_{method}_wobble_dt/2", model, x0, v0, dt / 2, T, method)
+    ctx.progress(f"{net} {method}: energy wobble over {T:.4g} s: {a1:.4g} J at dt, {a2:.4g} J at dt/2")
+    # the wobble must stand out of the total energy's round-off (eps |E| per sample) to show its order
+    noise = WOBBLE_NOISE * np.finfo(np.float64).eps * max(E1, E2)
+    steps = int(round(T / (dt / 2)))
+    reason = ""
+    if a2 <= noise:
+        reason = (f"round-off: the energy wobble at dt/2 ({a2:.2g} J) is within {WOBBLE_NOISE:g} ulps of the total "
+                  f"energy ({max(E1, E2):.3g} J): the integration error is below what f64 resolves")
+    elif steps > WOBBLE_ROUNDOFF_STEPS:
+        # measured: velocity Verlet's order shows at 7e5 steps per run (chain k = 1e7 N) and is lost at 2e6 (1e8 N)
+        reason = (f"round-off: the run at dt/2 takes {steps:.3g} steps (stiff links or a small --dt-fraction), and the "
+                  f"round-off they accumulate in the positions is comparable to {METHOD_NAMES[method]}'s energy wobble "
+                  f"({a2:.2g} J), which then no longer scales as dt^{ORDER[method]}; a softer --{net}-k or a larger "
+                  "--dt-fraction shows the order")
     exps.append(Experiment(f"{net}, {method}: energy wobble ratio at dt vs dt/2 = 2^order",
-                           2.0 ** ORDER[method], a1 / a2, 0.05, "rel", id=f"{net}-{method}-wobble-order"))
+                           2.0 ** ORDER[method], a1 / a2 if a2 > 0 else math.inf, 0.05, "rel",
+                           id=f"{net}-{method}-wobble-order", reason=reason))
     if net == "frame":
         exps.append(Experiment(f"frame, {method}: linear momentum conserved (max |P - P0| / max sum m|v|)",
                                0.0, dP[0] / mv[0], 1e-12, "abs", id=f"frame-{method}-linear-momentum"))
@@ -355,14 +453,25 @@ def _conservation_run(ctx, net, model, x0, v0, dt, method, scale):
     return exps, scale
 
 
+WOBBLE_STEPS = 200   # a wobble run covers WOBBLE_T or at least this many of the coarser steps (soft springs)
+WOBBLE_NOISE = 1000  # ulps of the total energy a wobble must exceed to be measured
+WOBBLE_ROUNDOFF_STEPS = 1_000_000  # past this many steps a run's accumulated round-off blurs the wobble's order
+
+
+def wobble_time(net: str, dt: float) -> float:
+    """The time the energy-wobble runs of ``net`` cover: WOBBLE_T[net], or WOBBLE_STEPS steps of dt where
+    the springs are so soft that dt is long."""
+    return max(WOBBLE_T[net], WOBBLE_STEPS * dt)
+
+
 def _wobble(ctx, name, model, x0, v0, dt, T, method):
-    """Max - min of the total energy over time T (a fixed run of ``method``)."""
+    """(max - min of the total energy over time T, its largest |value|) (a fixed run of ``method``)."""
     ctx.note_integrator(name, method, fixed=True)
     st = model.make_state(x0, v0)
     E0 = diagnostics.total_energy(model, st)
     K, W = run_many_steps(model, st, dt, int(round(T / dt)), method)
     E = np.concatenate([[E0], K + W])
-    return float(E.max() - E.min())
+    return float(E.max() - E.min()), float(np.abs(E).max())
 
 
 def _forward_euler_chain(ctx, model, x0, v0, dt, scale):
@@ -379,8 +488,14 @@ def _forward_euler_chain(ctx, model, x0, v0, dt, scale):
     except BlowUpError as exc:
         step = exc.step
         ctx.progress(f"detected: {exc}")
+    # forward Euler multiplies a mode's energy by 1 + (w dt)^2 per step, and w dt <= 2 dt-fraction (the
+    # CFL estimate is a lower bound of the limit 2/w_max): at most this over the run
+    most = math.exp(min(N * math.log1p((2 * ctx.cfg.dt_fraction) ** 2), 700.0))
+    reason = (f"forward Euler gains at most (1 + (w_max dt)^2)^N = {most:.6g} times a mode's energy over the {N} steps "
+              f"at --dt-fraction {ctx.cfg.dt_fraction:g} (w_max dt <= 2 x dt-fraction): the chain's fast modes start "
+              "too small to gain a swing's energy so slowly; more --steps or a larger --dt-fraction shows it")
     return Experiment(f"chain, forward Euler: energy grows by one peak kinetic energy within {N} steps "
-                      "(step detected)", N, step, 0, "<=", "steps", id="chain-forward-euler-blows-up")
+                      "(step detected)", N, step, 0, "<=", "steps", id="chain-forward-euler-blows-up", reason=reason)
 
 
 def _forward_euler_modes(ctx):
@@ -583,6 +698,7 @@ UNDAMPED = ("symplectic-euler", "velocity-verlet")
 
 def stage_sound(ctx):
     cfg = ctx.cfg
+    announce(ctx, stage4_seconds(cfg))
     rho = cfg.rho
     c = math.sqrt(cfg.E / rho)
     h = 1.0 / cfg.wave_segments
@@ -714,13 +830,38 @@ def stage_hanging(ctx):
     return exps
 
 
-def _hanging(ctx, kind, tol=1e-10):
+HANG_TOL = 1e-10      # the static solve's residual (net force / a node's weight), unless round-off forbids it
+HANG_TOL_MAX = 1e-6   # past this the forces' round-off swamps the weight: the claims fail, saying so
+
+
+def force_roundoff(model, sag: float) -> float:
+    """The round-off floor of the static residual r = max |f + m g| / max |m g| of a chain: a spring's
+    tension c/L (l/L - 1) is computed from positions known to eps max|x| (x within ``sag`` of the rest
+    shape), so each tension is uncertain by (c/L) eps (2 max|x| / L + 2), and a node's net force by
+    twice that (measured floors: 0.3-0.4 of this, hanging rods of 50..5000 nodes)."""
+    sp = model.springs
+    eps = np.finfo(np.float64).eps
+    xmax = float(np.abs(model.X).max()) + sag
+    dT = sp.c_np / sp.L_np * eps * (2 * xmax / sp.L_np + 2)
+    weight = float(np.max(model.mass[model.free] * np.linalg.norm(model.gravity)))
+    return 2 * float(dT.max()) / weight
+
+
+def _hanging(ctx, kind, tol=HANG_TOL):
     """The static equilibrium of the hanging rod on a ``kind`` grid against u = (rho g/E)(L p - p^2/2),
-    and the pin's reaction against the weight."""
+    and the pin's reaction against the weight. The solve's tolerance is HANG_TOL, or twice the residual's
+    round-off floor (:func:`force_roundoff`) where that is larger (a long or stiff rod); past HANG_TOL_MAX
+    the claims cannot be checked in f64 and fail with that reason."""
     cfg = ctx.cfg
     model, p = _hanging_rod(cfg, kind)
+    floor = force_roundoff(model, cfg.rho * G / (2 * cfg.E))
+    tol = min(max(tol, 2 * floor), HANG_TOL_MAX)
+    reason = "" if 2 * floor <= HANG_TOL_MAX else (
+        f"round-off: the rod's spring forces are known only to {floor:.1e} of a node's weight (E / (rho g h^2) = "
+        f"{cfg.E / (cfg.rho * G * float(np.max(np.diff(p))) ** 2):.2g}; positions carry 1e-16 m), so its sag cannot be "
+        f"resolved to {HANG_TOL_MAX:g}; use a smaller --E/--rho or fewer --hang-nodes")
     t0 = time.perf_counter()
-    res = solve_static(model, tol=tol, raise_on_failure=False)
+    res = solve_static(model, tol=tol, raise_on_failure=False, max_iter=max(100, 4 * int(math.log2(cfg.hang_nodes)) + 50))
     ctx.progress(f"{kind}: Newton {res.iterations} iterations, residual {res.residual:.3g} "
                  f"({time.perf_counter() - t0:.2f} s)")
     x = np.asarray(res.x)
@@ -732,13 +873,14 @@ def _hanging(ctx, kind, tol=1e-10):
         _draw_hanging(ctx.rec, kind, model, x, cfg.rho * G / cfg.E)
     return [
         Experiment(f"{kind} grid: static solver converged (net-force residual <= tol)", tol, res.residual, 0, "<=",
-                   id=f"hanging-{kind}-converged"),
+                   id=f"hanging-{kind}-converged", reason=reason or res.message),
         # a residual r leaves each tension wrong by at most (n - 1) r max(m g), hence u by at most
         # (n - 1) r max(m) g L / E = 2 (n - 1) max(m) / (rho L) r u_max
         Experiment(f"{kind} grid: nodal displacement = (rho g/E)(L p - p^2/2) (max rel. error)",
                    0.0, err, 2 * (cfg.hang_nodes - 1) * model.mass.max() / cfg.rho * tol, "abs",
-                   id=f"hanging-{kind}-displacement"),
+                   id=f"hanging-{kind}-displacement", reason=reason),
         # R - weight = sum of the free nodes' residual forces: at most (n - 1) r max(m g)
         Experiment(f"{kind} grid: pin reaction carries the whole weight rho g L", weight,
-                   float(res.reactions[0, 2]), (cfg.hang_nodes - 1) * tol, "rel", "N", id=f"hanging-{kind}-pin-reaction"),
+                   float(res.reactions[0, 2]), (cfg.hang_nodes - 1) * tol, "rel", "N", id=f"hanging-{kind}-pin-reaction",
+                   reason=reason),
     ]
