@@ -250,6 +250,7 @@ def test_a_too_short_wavelength_fails_honestly():
     s = run_stage(LESSON, 4, box_wavelength=8)
     e = s["box-p-wave-111"]
     assert not e.passed and e.measured < e.theory
+    assert "lattice dispersion" in e.reason  # and the failure says why
 
 
 # ------------------------------------------------------------ stepping options (--integrator)

@@ -21,6 +21,8 @@ from engine.waves import (ModeProbe, cauchy_born_tensor, christoffel, max_speed,
                           relaxed_stiffness_2d, young_poisson)
 from engine.theory.schemes import backward_euler_damping_rate as be_damping_rate
 
+from engine.errors import ParameterError
+
 from .._framework import Experiment
 from .._measure import damped_frequency, edge_strain, vertex_strain
 from .._scene import simulate
@@ -33,6 +35,76 @@ BE_PHASE_LAG = 1e-3   # the bound on that lag, a tenth of the tightest tolerance
 BE_DAMPING_TOL = 0.03  # fitted / predicted decay rate: the decay over a run is only ~5%, and the probe
                        # also sees a little of other motion (up to 1.7% measured on the regular meshes)
 DRAWN_AMPLITUDE = 1 / 24  # a drawn wave's displacement amplitude, in wavelengths (the true one: strain/(2 pi))
+
+
+# ------------------------------------------------------------------ the parameters' limits
+
+# seconds of each stage at the defaults on the reference 2-thread CPU (velocity Verlet), and how they scale:
+# the steps go as 1/cfl and as the wave's length in cells, the vertices as its square (sheets) or cube (boxes)
+STAGE_SECONDS = {1: 6.7, 2: 0.6, 3: 3.0, 4: 3.2, 5: 0.2}
+WORK_BUDGET_S = 3600.0  # a stage estimated to take longer is refused
+STRETCH_TOL = 1e-8      # the static stretch's residual
+
+
+def stage_seconds(cfg, stage: int) -> float:
+    """An estimate of stage ``stage``'s time on the reference CPU, scaled from its time at the defaults."""
+    d = type(cfg)()
+    slower = d.cfl / cfg.cfl
+    if stage == 1:  # three boxes of nc, 2 nc, 4 nc cells: vertices ~ nc^3, steps ~ nc
+        return STAGE_SECONDS[1] * (cfg.box_cells / d.box_cells) ** 4 * slower
+    if stage == 2:
+        return STAGE_SECONDS[2] * (cfg.wavelength / d.wavelength) ** 3 * slower
+    if stage == 3:  # 12 pattern runs and 2 per jittered mesh (jitter_seeds strong + 1 mild)
+        runs = (12 + 2 * (cfg.jitter_seeds + 1)) / (12 + 2 * (d.jitter_seeds + 1))
+        return STAGE_SECONDS[3] * (cfg.wavelength / d.wavelength) ** 3 * runs * slower
+    if stage == 4:  # boxes of a few wavelengths: vertices ~ box_wavelength^3, steps ~ box_wavelength
+        return STAGE_SECONDS[4] * (cfg.box_wavelength / d.box_wavelength) ** 4 * slower
+    return STAGE_SECONDS[5] * (cfg.strip_cells / d.strip_cells) ** 3
+
+
+def time_text(seconds: float) -> str:
+    return (f"{seconds / 3600:.3g} h" if seconds >= 3600 else f"{seconds / 60:.0f} min" if seconds >= 60
+            else f"{seconds:.0f} s")
+
+
+def check_work(cfg) -> None:
+    """Refuse a configuration any of whose stages would take more than WORK_BUDGET_S."""
+    flags = {1: "--box-cells, --cfl", 2: "--wavelength, --cfl", 3: "--wavelength, --jitter-seeds, --cfl",
+             4: "--box-wavelength, --cfl", 5: "--strip-cells"}
+    for stage, what in flags.items():
+        seconds = stage_seconds(cfg, stage)
+        if seconds > WORK_BUDGET_S:
+            raise ParameterError(f"{what}: stage {stage} would take about {time_text(seconds)} on the reference "
+                                 f"2-thread CPU, over the lesson's budget of {time_text(WORK_BUDGET_S)}; use a larger "
+                                 "--cfl or smaller sizes")
+
+
+def announce(ctx, stage: int) -> None:
+    seconds = stage_seconds(ctx.cfg, stage)
+    if seconds > 30:
+        ctx.progress(f"this stage takes about {time_text(seconds)} on the reference 2-thread CPU (a progress bar "
+                     "follows each long run on a terminal)")
+
+
+def dispersion_reason(cells: float, tol: float = 2e-2) -> str:
+    """Why a wave speed measured on a lattice misses its long-wavelength value: a wave only ``cells``
+    lattice spacings long is slower by about (k a)^2/24 (k a = 2 pi / cells), the lattice's dispersion.
+    Empty when that is under a quarter of ``tol``."""
+    ka = 2 * math.pi / cells
+    slow = ka * ka / 24
+    if slow <= 0.25 * tol:
+        return ""
+    return (f"lattice dispersion: the wave is only {cells:.3g} spacings long, and a lattice's waves that short are "
+            f"slower than the long-wavelength (Cauchy-Born) value by about (k a)^2/24 = {slow:.2%}; use a longer "
+            "wavelength")
+
+
+def with_reason(exps: list, reason: str) -> list:
+    """``exps`` with ``reason`` given to every experiment that has none."""
+    for e in exps:
+        if not e.reason:
+            e.reason = reason
+    return exps
 
 
 # ------------------------------------------------------------------ meshes and runs
@@ -224,6 +296,7 @@ def square_domain_cells(half: float, spacing: float) -> int:
 
 def stage_refinement(ctx):
     cfg = ctx.cfg
+    announce(ctx, 1)
     speeds = {"area": [], "k": []}
     fits = []
     k_spring = None
@@ -231,7 +304,7 @@ def stage_refinement(ctx):
     for level, nc in enumerate(cfg.box_cells * 2 ** i for i in range(3)):
         k_spring = _refinement_level(ctx, level, nc, k_spring, speeds, fits, shown)
     a, kk = speeds["area"], speeds["k"]
-    return [
+    exps = [
         Experiment("one k for all springs: speed ratio c(h/2)/c(h) = 2 (c ~ 1/h)", 2.0, kk[1] / kk[0], 2e-2,
                    id="one-k-ratio-h2"),
         Experiment("one k for all springs: speed ratio c(h/4)/c(h) = 4 (c ~ 1/h)", 4.0, kk[2] / kk[0], 2e-2,
@@ -243,6 +316,8 @@ def stage_refinement(ctx):
         Experiment("volume-scaled springs: speed ratio c(h/4)/c(h) = 1", 1.0, a[2] / a[0], 1e-2,
                    id="volume-scaled-ratio-h4"),
     ] + be_experiments(ctx, "refinement", fits)
+    # the standing wave is 2 m long: 2 box_cells spacings on the coarse box, where dispersion is largest
+    return with_reason(exps, dispersion_reason(2 * BOX_LENGTH * cfg.box_cells, 1e-2))
 
 
 LAWS = {"area": "volume-scaled springs", "k": "one k for every spring"}
@@ -302,12 +377,13 @@ def eq_sheet(cfg, half_cells: float, spacing: float = 1.0) -> M.Mesh:
 
 def stage_equilateral(ctx):
     cfg = ctx.cfg
+    announce(ctx, 2)
     c0 = math.sqrt(cfg.E / cfg.rho)
     cP, cS = math.sqrt(3 / 8) * c0, math.sqrt(1 / 8) * c0
     fits = []
     out = _equilateral_speeds(ctx, cP, cS, fits)
     ratio = 0.5 * (out["P", "x"] / out["S", "x"] + out["P", "y"] / out["S", "y"])
-    return [
+    exps = [
         Experiment("P wave along x (an edge direction) = sqrt(3/8) c0", cP, out["P", "x"], 2e-2, "rel", "m/s",
                    id="p-wave-x"),
         Experiment("P wave along y (across the edges) = sqrt(3/8) c0", cP, out["P", "y"], 2e-2, "rel", "m/s",
@@ -320,6 +396,7 @@ def stage_equilateral(ctx):
         Experiment("isotropy: P speed along y / along x = 1", 1.0, out["P", "y"] / out["P", "x"], 1e-2,
                    id="p-wave-isotropy"),
     ] + be_experiments(ctx, "equilateral", fits)
+    return with_reason(exps, dispersion_reason(cfg.wavelength, 1e-2))
 
 
 def _equilateral_speeds(ctx, cP: float, cS: float, fits: list) -> dict:
@@ -361,6 +438,7 @@ DIRECTIONS = {"x": ([1.0, 0.0], "x"), "y": ([0.0, 1.0], "y"), "diagonal (1,1)": 
 
 def stage_patterns(ctx):
     cfg = ctx.cfg
+    announce(ctx, 3)
     lam = float(cfg.wavelength)
     k = 2 * math.pi / lam
     r = 0.15 * lam  # the disc the amplitude is read in
@@ -376,7 +454,7 @@ def stage_patterns(ctx):
                            id="one-way-anisotropic"))
     jittered = []
     exps += _jitter_experiments(ctx, n, k, lam, jittered, shown.get("span"))
-    return exps + be_experiments(ctx, "patterns", fits, jittered)
+    return with_reason(exps + be_experiments(ctx, "patterns", fits, jittered), dispersion_reason(cfg.wavelength))
 
 
 SHOWN_PATTERN_RUNS = (("one-way", "diagonal (1,1)"), ("one-way", "diagonal (1,-1)"), ("alternating", "x"))
@@ -455,12 +533,18 @@ def _jitter_experiments(ctx, n, k, lam, fits, span=None):
             else:
                 exps.append(Experiment(f"mild jitter {amp:g}: P along {label} = Cauchy-Born sum over its springs",
                                        s_aff[-1], v, 2e-2, "rel", "m/s", id=f"mild-jitter-p-wave-{label}"))
+    scatter = (f"disorder: the wave is {lam:g} spacings long on a mesh jittered by {cfg.jitter:g} of its spacing; the "
+               "relaxed network's speed is the long-wavelength limit of the disordered network, and the closer the "
+               "wavelength comes to the scale of the disorder the more the mesh scatters it (and the more each mesh "
+               "differs from the next); use a longer --wavelength")
+    for e in exps:
+        e.reason = scatter
     speeds = np.asarray(speeds)
     exps += [
         Experiment(f"jitter {cfg.jitter:g}: the affine Cauchy-Born sum is an upper bound (max measured/sum)",
                    1.0, max(bound), 0, "<=", id="jitter-affine-sum-upper-bound"),
         Experiment(f"jitter {cfg.jitter:g}: spread of the x and y speeds over {cfg.jitter_seeds} meshes, (max-min)/mean",
-                   0.02, float(np.ptp(speeds) / speeds.mean()), 0, "<=", id="jitter-speed-spread"),
+                   0.02, float(np.ptp(speeds) / speeds.mean()), 0, "<=", id="jitter-speed-spread", reason=scatter),
     ]
     ctx.progress(f"jitter {cfg.jitter:g}: speeds {np.round(speeds, 5).tolist()}, mean {speeds.mean():.5f}, "
                  f"std {speeds.std():.2g}; affine sum over-predicts by {1 / np.mean(bound) - 1:.2%} on average")
@@ -471,6 +555,7 @@ def _jitter_experiments(ctx, n, k, lam, fits, span=None):
 
 def stage_tet_box(ctx):
     cfg = ctx.cfg
+    announce(ctx, 4)
     probe_mesh = M.tet_box(6, 6, 6, size=5.0)
     C_unit = bulk_tensor(probe_mesh, cfg.E * probe_mesh.edge_measure, 1.0)  # the same for every h
     fits = []
@@ -478,7 +563,7 @@ def stage_tet_box(ctx):
     (a1, t1), (a2, _), (b1, tb), (x1, tx) = (out["(1,1,1)", 1], out["(1,1,1)", 2], out["(1,1,-1)", 1], out["x", 1])
     E_x, nu_x = young_poisson(C_unit, 0)
     ctx.progress(f"tet box Cauchy-Born: Young's modulus along x {E_x:.4f} E, Poisson ratio {nu_x:.4f}")
-    return [
+    exps = [
         Experiment("tet box, h: P along (1,1,1) = Cauchy-Born sqrt(10/27) c0", t1, a1, 2e-2, "rel", "m/s",
                    id="box-p-wave-111"),
         Experiment("tet box, h/2: P along (1,1,1) = Cauchy-Born", t1, a2, 2e-2, "rel", "m/s",
@@ -490,6 +575,7 @@ def stage_tet_box(ctx):
         Experiment("tet box: quasi-P along x = Cauchy-Born", tx, x1, 2e-2, "rel", "m/s", id="box-p-wave-x"),
         Experiment("tet box is anisotropic: speed (1,1,1) / (1,1,-1)", t1 / tb, a1 / b1, 2e-2, id="box-anisotropic"),
     ] + be_experiments(ctx, "tet-box", fits)
+    return with_reason(exps, dispersion_reason(cfg.box_wavelength))
 
 
 def _tet_box_speeds(ctx, C_unit: np.ndarray, fits: list) -> dict:
@@ -538,12 +624,13 @@ def stage_stretch(ctx):
     n = cfg.strip_cells
     w = max(4, n // 4)
     eq = M.equilateral_lattice(n + 1, int(round(w / (math.sqrt(3) / 2))) + 1, 1.0)
-    nu_eq, E_eq, E_nominal = _pull(ctx, "equilateral_strip", eq, 0.5 + 1e-9)
+    unsolved = []  # why a static solve stopped short, if one did
+    nu_eq, E_eq, E_nominal = _pull(ctx, "equilateral_strip", eq, 0.5 + 1e-9, unsolved)
     grid = M.right_triangle_grid(n + 1, w + 1, float(n), float(w), "alternating")
     C = cauchy_born_tensor(grid.vertices, grid.edges, cfg.E * grid.edge_measure, grid.total_measure)
     E_alt, nu_alt_th = young_poisson(C, 0)
-    nu_alt, E_alt_m, _ = _pull(ctx, "alternating_strip", grid, 1e-9)
-    return [
+    nu_alt, E_alt_m, _ = _pull(ctx, "alternating_strip", grid, 1e-9, unsolved)
+    return with_reason([
         Experiment("equilateral sheet: Poisson's ratio = 1/3", 1 / 3, nu_eq, 2e-2, id="equilateral-poisson-ratio"),
         Experiment("equilateral sheet: Young's modulus E_eff = E/3", cfg.E / 3, E_eq, 2e-2, "rel", "N/m",
                    id="equilateral-young-modulus"),
@@ -553,12 +640,13 @@ def stage_stretch(ctx):
                    id="alternating-poisson-ratio"),
         Experiment("alternating grid, pulled along x: Young's modulus (Cauchy-Born, 2E/5)", E_alt, E_alt_m, 2e-2,
                    "rel", "N/m", id="alternating-young-modulus"),
-    ]
+    ], "; ".join(unsolved))
 
 
-def _pull(ctx, name: str, m2: M.Mesh, end_width: float):
+def _pull(ctx, name: str, m2: M.Mesh, end_width: float, unsolved: list):
     """Clamp the ends (vertices within end_width of x_min/x_max), stretch by cfg.strain,
-    solve the statics; returns (nu, E_eff in the middle, F/(w * nominal strain))."""
+    solve the statics; returns (nu, E_eff in the middle, F/(w * nominal strain)). A solve that stops
+    short of its tolerance appends why to ``unsolved`` (the measurements are then of its last iterate)."""
     from engine.statics import solve_static
 
     cfg = ctx.cfg
@@ -569,7 +657,10 @@ def _pull(ctx, name: str, m2: M.Mesh, end_width: float):
     model, c, mass = area_model(m3, cfg.E, cfg.rho, pinned=np.flatnonzero(left | right))
     start = X.copy()
     start[:, 0] = x0 + (X[:, 0] - x0) * (1 + cfg.strain)
-    res = solve_static(model, x0=start, tol=1e-8, max_iter=60)
+    res = solve_static(model, x0=start, tol=STRETCH_TOL, max_iter=60, raise_on_failure=False)
+    if not res.converged:
+        unsolved.append(f"{STRIPS[name]}: the static solve stopped at residual {res.residual:.2g} > {STRETCH_TOL:g} "
+                        f"after {res.iterations} Newton steps ({res.message})")
     u = res.x - X
     width = X[:, 1].max() - X[:, 1].min()
     exx, eyy = _middle_strains(X, u, x0, x1)
