@@ -107,7 +107,7 @@ def stage_work(cfg, stage: int) -> float:
 
 def work_text(work: float) -> str:
     seconds = work / WORK_RATE
-    when = f"{seconds / 3600:.1f} h" if seconds >= 3600 else f"{seconds / 60:.0f} min" if seconds >= 60 else \
+    when = f"{seconds / 3600:.3g} h" if seconds >= 3600 else f"{seconds / 60:.0f} min" if seconds >= 60 else \
         f"{seconds:.0f} s"
     return f"about {work:.2g} node-steps, ~{when} at {WORK_RATE:.2g} node-steps/s"
 

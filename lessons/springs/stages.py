@@ -123,7 +123,7 @@ def stage2_plan(cfg) -> dict:
 
 
 def time_text(seconds: float) -> str:
-    return (f"{seconds / 3600:.1f} h" if seconds >= 3600 else f"{seconds / 60:.0f} min" if seconds >= 60
+    return (f"{seconds / 3600:.3g} h" if seconds >= 3600 else f"{seconds / 60:.0f} min" if seconds >= 60
             else f"{seconds:.0f} s")
 
 
