@@ -3,6 +3,9 @@
 Parts, each in its own process so that thread count, precision and kernel cache are set at
 start-up (Taichi initialises once per process):
 
+0. checks: bench/test_correctness.py and bench/test_peers_explicit.py (plain pytest): the engine,
+   the baselines and every installed peer compute the same forces and solve the same systems;
+   if they do not, nothing is timed;
 1. ``pytest bench --benchmark-only`` (pytest-benchmark) for each configuration:
    t2-f64 (ELASTIC_THREADS=2), t1-f64 (ELASTIC_THREADS=1), t2-f32 (ELASTIC_FP=32);
 2. the start-up probe (bench/startup.py) with an empty, then the filled, kernel cache;
@@ -33,7 +36,9 @@ PROJECT_ROOT = BENCH_DIR.parent
 CONFIGS = {"t2-f64": {"ELASTIC_THREADS": "2", "ELASTIC_FP": "64"},
            "t1-f64": {"ELASTIC_THREADS": "1", "ELASTIC_FP": "64"},
            "t2-f32": {"ELASTIC_THREADS": "2", "ELASTIC_FP": "32"}}
-PARTS = tuple(CONFIGS) + ("startup", "headline")
+PARTS = ("checks",) + tuple(CONFIGS) + ("startup", "headline")
+# what every contender computes, checked before anything is timed (the plain-pytest checks)
+CHECK_FILES = ("bench/test_correctness.py", "bench/test_peers_explicit.py")
 TIMEOUT_S = {"quick": 600, "full": 1800}
 
 
@@ -125,6 +130,20 @@ def main(argv=None) -> int:
     run = dict(timestamp=stamp, profile=profile, command=command, machine=info, parts={}, errors=[])
     t_all = time.perf_counter()
     base_env = dict(os.environ, ELASTIC_BENCH_PROFILE=profile, PYTHONUNBUFFERED="1")
+
+    if "checks" in parts:
+        _log("[checks] the engine, the baselines and every peer compute the same thing (bench/test_correctness.py, "
+             "bench/test_peers_explicit.py)")
+        env = dict(base_env, ELASTIC_THREADS="2", ELASTIC_FP="64", ELASTIC_BENCH_PROFILE="smoke")
+        cmd = [sys.executable, "-m", "pytest", *CHECK_FILES, "-q", "-rs", "-p", "no:cacheprovider",
+               "--benchmark-disable"]
+        rc, wall = _run(cmd, env, raw / "checks.log", timeout, "checks",
+                        show=lambda line: "passed" in line or "failed" in line or "FAILED" in line)
+        run["parts"]["checks"] = dict(rc=rc, wall_s=wall, skipped=_skip_reasons(raw / "checks.log"))
+        if rc != 0:
+            run["errors"].append(f"checks: pytest exit {rc}: a contender does not compute what the engine does; "
+                                 f"nothing was timed (log {raw / 'checks.log'})")
+            parts = [p for p in parts if p == "checks"]
 
     for cfg, cenv in CONFIGS.items():
         if cfg not in parts:
