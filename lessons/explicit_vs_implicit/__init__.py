@@ -32,8 +32,11 @@ class ExplicitImplicitConfig:
     big: float = param(10.0, "stage 1: dt of the first backward-Euler run / the explicit limit", ge=2, le=1000)
     huge: float = param(100.0, "stage 1: dt of the second backward-Euler run / the explicit limit", ge=2,
                         le=10000)
-    seed_size: float = param(1e-9, "stage 1: random in-plane displacement that seeds the fastest modes", "m",
-                             gt=0, le=1e-3)
+    seed_size: float = param(1e-9, "stage 1: random in-plane displacement that seeds the fastest modes (at least "
+                             "1e-12 m: positions of about 1 m are stored to 1e-16 m, and a smaller seed is lost in "
+                             "their round-off; at most 1e-4 m, a small linear perturbation of the cloth: a 1 mm seed "
+                             "strains its springs by percents and the run at 0.9 x the limit goes unstable)", "m",
+                             ge=1e-12, le=1e-4)
     seed: int = param(0, "random seed of that displacement", ge=0)
     mode_n: int = param(7, "stage 2: vertices per side of the small cloth whose modes are excited", ge=4, le=12)
     conv_n: int = param(9, "stage 2: vertices per side of the cloth of the convergence study", ge=4, le=16)
@@ -54,6 +57,13 @@ class ExplicitImplicitConfig:
             raise ParameterError(f"--huge must be larger than --big (got {self.huge} <= {self.big})")
         if self.E_stiff <= self.E_soft:
             raise ParameterError(f"--E-stiff must be larger than --E-soft (got {self.E_stiff} <= {self.E_soft})")
+        sag = self.rho * 9.81 / self.E  # the strain of the 1 m cloth's weight, rho g L / E
+        if sag > stages.MAX_WEIGHT_STRAIN:
+            raise ParameterError(
+                f"--E {self.E:g} with --rho {self.rho:g}: the cloth's own weight would stretch it by rho g L / E = "
+                f"{sag:.2g}, over {stages.MAX_WEIGHT_STRAIN:g}; the lesson's limits and modes are taken about a hanging "
+                f"cloth that barely stretches: use --E >= {self.rho * 9.81 / stages.MAX_WEIGHT_STRAIN:.3g} N/m")
+        stages.check_work(self)
 
 
 LESSON = Lesson(

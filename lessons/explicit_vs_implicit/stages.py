@@ -14,7 +14,7 @@ import numpy as np
 from engine import diagnostics
 from engine.analysis import fit_slope
 from engine.constants import G
-from engine.errors import BlowUpError
+from engine.errors import BlowUpError, ParameterError
 from engine.integrators import make_integrator
 from engine.stability import gershgorin_lambda_max, lambda_max_power
 from engine.theory.schemes import symplectic_euler_growth
@@ -55,7 +55,8 @@ class Watched:
     linear residual, the CG iterations, the Newton iterations, and whether the incremental
     potential went down at every Newton iteration and the iteration converged: |grad Phi| fell
     by newton_tol (relative to at least the weight, so a settled cloth converges at once), or the
-    line search found no measurable decrease left."""
+    line search found no measurable decrease left (none at all, or only decreases below Phi's
+    round-off to the last iteration)."""
 
     def __init__(self, integrator):
         self.integrator = integrator
@@ -74,8 +75,13 @@ class Watched:
         self.newton.append(info.newton_iterations)
         obj = info.objectives
         self.monotone.append(all(b < a for a, b in zip(obj, obj[1:])))
-        self.converged.append(info.newton_converged or info.line_search_failed
-                              or self.integrator.newton_iterations == 1)
+        converged = info.newton_converged or info.line_search_failed or self.integrator.newton_iterations == 1
+        if not converged and len(obj) >= 2:
+            # Newton ran to its cap taking tiny steps that lowered Phi by less than its round-off (64 eps x
+            # the energies it is a difference of): no measurable decrease was left, as when the line search fails
+            noise = 64 * np.finfo(np.float64).eps * (abs(model.potential_energy(state.x)) + abs(model.elastic_energy(state.x)))
+            converged = obj[-2] - obj[-1] <= noise
+        self.converged.append(converged)
 
 
 def free_modes(model, x, planar: bool = True):
@@ -104,6 +110,79 @@ def in_plane_seed(model, size: float, seed: int) -> np.ndarray:
     return d
 
 
+# ------------------------------------------------------------------ the parameters' limits
+
+# seconds per step on the reference 2-thread CPU for a 16 x 16 cloth (more vertices: proportionally more)
+EXPLICIT_STEP_S = 1.7e-3       # symplectic Euler with bending (one force evaluation)
+BE_ONE_NEWTON_STEP_S = 17e-3   # backward Euler, one Newton iteration, pcg (~120 CG iterations at 10 x the limit)
+BE_NEWTON_STEP_S = 65e-3       # backward Euler, Newton converged (~3.5 iterations at 100 x the limit)
+STAGE2_SECONDS = 14.7          # stage 2 at the defaults (88 coarsest steps), most of it its convergence runs
+WORK_BUDGET_S = 3600.0         # a stage estimated to take longer is refused
+SETTLED = 1e-3                 # "reaches the hanging equilibrium": max |x - x_eq| / sag at the end
+MAX_WEIGHT_STRAIN = 0.1        # rho g L / E, the strain the cloth's weight may cause (1e-3 at the defaults)
+
+
+def limit_estimate(n: int, E: float, rho: float, B: float) -> float:
+    """The explicit limit 2/w_max of an n x n cloth without building it (for the up-front checks):
+    w_max^2 ~ max(1.72 E/(rho h^2), 8.9 B/(rho h^4)), the stretching and the bending bounds measured
+    by power iteration on the flat cloth (within a few % of either where it dominates)."""
+    h = 1.0 / (n - 1)
+    return 2.0 / math.sqrt(max(1.72 * E / (rho * h * h), 8.9 * B / (rho * h ** 4)))
+
+
+def stage_seconds(cfg, stage: int) -> float:
+    """An estimate of stage ``stage``'s time on the reference CPU (every run to its planned end)."""
+    if stage == 1:
+        dt = limit_estimate(cfg.n, cfg.E, cfg.rho, cfg.B)
+        size = max(1.0, cfg.n * cfg.n / 256)
+        explicit = cfg.explicit_time / dt * (1 / cfg.below + 2 / cfg.above) * EXPLICIT_STEP_S
+        implicit = cfg.implicit_time / dt * (BE_ONE_NEWTON_STEP_S * math.sqrt(cfg.big / 10) / cfg.big
+                                             + BE_NEWTON_STEP_S * math.sqrt(cfg.huge / 100) / cfg.huge)
+        return size * (explicit + implicit)
+    if stage == 2:  # the convergence runs: about 70 x n0 steps, n0 = conv_time / (0.3 x the limit)
+        d = type(cfg)()
+        n0 = lambda c: max(20, math.ceil(c.conv_time / (0.3 * limit_estimate(c.conv_n, c.E, c.rho, c.B))))
+        return STAGE2_SECONDS * n0(cfg) / n0(d) * max(1.0, cfg.conv_n ** 2 / d.conv_n ** 2)
+    return 0.0
+
+
+def time_text(seconds: float) -> str:
+    return (f"{seconds / 3600:.3g} h" if seconds >= 3600 else f"{seconds / 60:.0f} min" if seconds >= 60
+            else f"{seconds:.0f} s")
+
+
+def check_work(cfg) -> None:
+    """Refuse a configuration whose stage 1 or 2 would take more than WORK_BUDGET_S."""
+    for stage, what in ((1, "--n, --E, --rho, --B, --explicit-time, --implicit-time, --below, --big, --huge"),
+                        (2, "--conv-n, --conv-time, --E, --rho, --B")):
+        seconds = stage_seconds(cfg, stage)
+        if seconds > WORK_BUDGET_S:
+            raise ParameterError(f"{what}: stage {stage} would take about {time_text(seconds)} on the reference "
+                                 f"2-thread CPU, over the lesson's budget of {time_text(WORK_BUDGET_S)}; use a softer, "
+                                 "heavier or smaller cloth, or shorter times")
+
+
+def announce(ctx, stage: int) -> None:
+    seconds = stage_seconds(ctx.cfg, stage)
+    if seconds > 30:
+        ctx.progress(f"this stage takes up to about {time_text(seconds)} on the reference 2-thread CPU (a progress "
+                     "bar follows each long run on a terminal)")
+
+
+def slowest_in_plane(model, x) -> float:
+    """w1, the slowest in-plane angular frequency of M^-1 H at x (the cloth's own plane, x and z), by
+    shift-invert Lanczos on the dense in-plane Hessian (scipy): for the reason of a failure only."""
+    from scipy.sparse.linalg import eigsh
+
+    H = model.dense_hessian(vec3_ndarray(model.n, x), psd=False)
+    free = np.flatnonzero(model.free)
+    dofs = (3 * free[:, None] + np.array([0, 2])[None, :]).ravel()
+    s = 1.0 / np.sqrt(np.repeat(model.mass[free], 2))
+    A = s[:, None] * H[np.ix_(dofs, dofs)] * s[None, :]
+    w2 = eigsh(A, k=1, sigma=0.0, which="LM", return_eigenvectors=False)
+    return math.sqrt(max(float(w2[0]), 0.0))
+
+
 # ------------------------------------------------------------------------- stage 1
 
 @dataclass
@@ -127,6 +206,7 @@ class _HangingCloth:
 
 def stage_cfl(ctx):
     cfg = ctx.cfg
+    announce(ctx, 1)
     scene = cloth(cfg.n, 1.0, E=cfg.E, rho=cfg.rho, B=cfg.B)
     cl, exps = _hanging_cloth(ctx, scene)
     survived, n_below, pinned_moved = _symplectic_below(ctx, cl)
@@ -164,10 +244,14 @@ def _hanging_cloth(ctx, scene):
     exps.append(Experiment(f"Gershgorin's dt is safe: at most the true limit (ratio {dt_gersh / dt_true:.3f})",
                            dt_true, dt_gersh, 0, "<=", "s", id="gershgorin-dt-safe"))
     seed = in_plane_seed(model, cfg.seed_size, cfg.seed)
-    E0 = diagnostics.total_energy(model, model.make_state(X))
+    # the start is the seeded flat sheet (the twin run's opposite seed stores the same energy to third order)
+    E0 = diagnostics.total_energy(model, model.make_state(X + seed))
     E_eq = model.potential_energy(x_eq_nd)
-    release = E0 - E_eq  # what the fall from the flat shape to the hanging one can set free
-    bound = E0 + release
+    E_flat = diagnostics.total_energy(model, model.make_state(X))
+    release = E_flat - E_eq  # what the fall from the flat shape to the hanging one can set free
+    # symplectic Euler's K + W of a mode at w dt = 2 b swings up to 1/(1 - b^2) of what it holds: the seed's
+    # energy (fast modes) may appear that much larger at 'below' x the limit without anything blowing up
+    bound = E0 + release + max(E0 - E_flat, 0.0) * cfg.below ** 2 / (1 - cfg.below ** 2)
     ctx.progress(f"energy: start {E0:.6g} J, equilibrium {E_eq:.6g} J; blow-up bound start + release = {bound:.6g} J")
     # full colour: rho g L / E, the strain of the 1 m sheet's weight hung from its whole top edge (about the
     # median strain of the hanging cloth; its corners, where the weight gathers, go beyond it)
@@ -228,6 +312,7 @@ def _symplectic_above(ctx, cl: _HangingCloth):
     # (at most 1/2 w_max^2 M |seed|^2) to the blow-up bound, not over the second it was planned for
     lam = symplectic_euler_growth((cfg.above * 2.0) ** 2)
     seed_energy = 0.5 * (2.0 / cl.dt_true) ** 2 * float((model.mass[:, None] * cl.seed ** 2).sum())
+    seed_energy = max(seed_energy, 1e-300)  # (a seed that small is refused up front; never divide by 0)
     grow = math.log(max((cl.bound - cl.E0) / seed_energy, 1.0)) / (2.0 * math.log(lam)) if lam > 1 else n_above
     span = min(n_above, int(math.ceil(1.5 * grow)) + 1) * dt
     detected, message, tracks = [], [], []
@@ -248,11 +333,15 @@ def _symplectic_above(ctx, cl: _HangingCloth):
             message.append(str(exc))
         tracks.append(track)
     ctx.progress(f"{cfg.above:g} x limit: {message[0] or 'no blow-up'}")
+    short = "" if n_above >= 1.5 * grow else (
+        f"too short: the run has {n_above} steps (--explicit-time {cfg.explicit_time:g} s), and the seed's fastest mode, "
+        f"growing {lam:.3g} x per step, needs about {grow:.0f} to lift its energy ({seed_energy:.2g} J) to the blow-up "
+        f"bound; a longer --explicit-time or a larger --seed-size shows it")
     exps = [
         Experiment(f"symplectic Euler at {cfg.above:g} x the limit blows up within {n_above} steps (step detected)",
-                   n_above - 1, detected[0], 0, "<=", id="symplectic-above-blows-up"),
+                   n_above - 1, detected[0], 0, "<=", id="symplectic-above-blows-up", reason=short),
         Experiment("the blow-up message names the CFL limit", 1.0, float("CFL limit" in message[0]), 0, "abs",
-                   id="blow-up-message-names-cfl"),
+                   id="blow-up-message-names-cfl", reason=short),
     ]
     if cl.modes is not None and min(len(tracks[0]), len(tracks[1])) >= 2:
         exps.append(_seed_growth(ctx, cl, dt, tracks))
@@ -282,9 +371,15 @@ def _seed_growth(ctx, cl: _HangingCloth, dt, tracks):
     ctx.progress(f"the seed grew {measured / start:.4g}x in {last} steps ({per_step:.3f} per "
                  f"step); modal prediction {predicted / start:.4g}x; {unstable} modes have w dt > 2, the fastest "
                  f"grows {lam:.3f}x per step")
+    # the prediction is linear about the flat sheet: it holds while the runs stay near it
+    moved = float(np.abs(0.5 * (tracks[0][last] + tracks[1][last]) - X).max())
+    h = 1.0 / (cfg.n - 1)
+    reason = (f"nonlinear: the prediction is linearised about the flat sheet, but in the {last} steps to the blow-up "
+              f"({last * dt:.3g} s) the cloth moved {moved:.3g} m ({moved / h:.2g} of a spacing) as it fell; a stiffer "
+              f"--E (a shorter limit, fewer seconds to the blow-up) or a larger --seed-size keeps it near the flat sheet")
     return Experiment(f"the seed grows as the modes' step matrices predict ({unstable} modes with w dt > 2; "
                       f"growth over {last} steps)", predicted / start, measured / start, 1e-2, "rel",
-                      id="seed-growth-modal")
+                      id="seed-growth-modal", reason=reason)
 
 
 def _backward_euler_far_above(ctx, cl: _HangingCloth, pinned_moved: float):
@@ -298,7 +393,8 @@ def _backward_euler_far_above(ctx, cl: _HangingCloth, pinned_moved: float):
     if cl.modes is not None:
         w2, shapes = cl.modes
         in_plane = np.abs(shapes[:, :, 1]).max(axis=1) < 1e-9 * np.abs(shapes).max(axis=(1, 2))
-        w1 = math.sqrt(float(w2[in_plane & (w2 > 0)].min()))
+        if np.any(in_plane & (w2 > 0)):
+            w1 = math.sqrt(float(w2[in_plane & (w2 > 0)].min()))
     exps, residuals, bad_steps = [], [], 0
     for which, factor, newton in (("big", cfg.big, 1), ("huge", cfg.huge, 50)):
         dt = factor * cl.dt_true
@@ -328,8 +424,9 @@ def _backward_euler_far_above(ctx, cl: _HangingCloth, pinned_moved: float):
                        "(initial energy + work of gravity)", cl.E0, float((K + W).max()), 0, "<=", "J",
                        id=f"backward-euler-{which}-energy-bounded"),
             Experiment(f"backward Euler at {factor:g} x: reaches the hanging equilibrium after "
-                       f"{n_steps * dt:.3g} s (max |x - x_eq| / largest sag)", 0.0, distance, 1e-3, "abs",
-                       id=f"backward-euler-{which}-reaches-equilibrium"),
+                       f"{n_steps * dt:.3g} s (max |x - x_eq| / largest sag)", 0.0, distance, SETTLED, "abs",
+                       id=f"backward-euler-{which}-reaches-equilibrium",
+                       reason=_unsettled_reason(ctx, cl, w1, dt, n_steps, factor, distance)),
         ]
         residuals.append(max(be.residuals))
         bad_steps += bad
@@ -343,9 +440,28 @@ def _backward_euler_far_above(ctx, cl: _HangingCloth, pinned_moved: float):
     ]
 
 
+def _unsettled_reason(ctx, cl: _HangingCloth, w1, dt: float, n_steps: int, factor: float, distance: float) -> str:
+    """Why a backward-Euler run has not settled, when linear theory says it cannot have: the cloth is
+    undamped, and only the scheme's numerical damping (1 + w^2 dt^2)^(-1/2) per step brings it to rest;
+    its slowest in-plane mode w1 keeps (1 + w1^2 dt^2)^(-N/2) of its amplitude. Computed only for a run
+    that did not settle (w1 by shift-invert Lanczos where the dense modes were not computed)."""
+    if distance <= SETTLED:
+        return ""
+    w1 = slowest_in_plane(cl.model, cl.x_eq) if w1 is None else w1
+    left = (1 + (w1 * dt) ** 2) ** (-n_steps / 2)
+    if left <= SETTLED / 3:
+        return ""  # theory says it should have settled: no excuse to give
+    needed = 2 * dt * math.log(1 / SETTLED) / math.log1p((w1 * dt) ** 2)
+    return (f"numerical damping too weak at this dt: the cloth itself is undamped, and backward Euler at {factor:g} x the "
+            f"limit (dt = {dt * 1e3:.3g} ms; the limit shrinks on finer or stiffer cloths) keeps (1 + w1^2 dt^2)^(-N/2) = "
+            f"{left:.2g} of its slowest in-plane mode (w1 = {w1:.3g} rad/s) after its {n_steps} steps; settling to "
+            f"{SETTLED:g} takes about {needed:.3g} s (--implicit-time) or a larger --{'big' if factor == ctx.cfg.big else 'huge'}")
+
+
 # ------------------------------------------------------------------------- stage 2
 
 def stage_accuracy(ctx):
+    announce(ctx, 2)
     return _mode_damping(ctx) + _convergence_orders(ctx)
 
 
