@@ -63,6 +63,8 @@ def stage_seconds(cfg, stage: int) -> float:
 
 
 def time_text(seconds: float) -> str:
+    if not math.isfinite(seconds):
+        return "forever (its time step is below the float range)"
     return (f"{seconds / 3600:.3g} h" if seconds >= 3600 else f"{seconds / 60:.0f} min" if seconds >= 60
             else f"{seconds:.0f} s")
 

@@ -127,13 +127,17 @@ def limit_estimate(n: int, E: float, rho: float, B: float) -> float:
     w_max^2 ~ max(1.72 E/(rho h^2), 8.9 B/(rho h^4)), the stretching and the bending bounds measured
     by power iteration on the flat cloth (within a few % of either where it dominates)."""
     h = 1.0 / (n - 1)
-    return 2.0 / math.sqrt(max(1.72 * E / (rho * h * h), 8.9 * B / (rho * h ** 4)))
+    with np.errstate(divide="ignore", over="ignore", invalid="ignore"):  # extreme values: inf or 0, then refused
+        lam = max(np.float64(1.72) * E / (np.float64(rho) * h * h), np.float64(8.9) * B / (np.float64(rho) * h ** 4))
+        return float(2.0 / np.sqrt(lam)) if lam > 0 else math.inf
 
 
 def stage_seconds(cfg, stage: int) -> float:
     """An estimate of stage ``stage``'s time on the reference CPU (every run to its planned end)."""
     if stage == 1:
         dt = limit_estimate(cfg.n, cfg.E, cfg.rho, cfg.B)
+        if not 0 < dt < math.inf:  # a limit under the float range (a vanishing density): never-ending
+            return math.inf if not dt > 0 else 0.0
         size = max(1.0, cfg.n * cfg.n / 256)
         explicit = cfg.explicit_time / dt * (1 / cfg.below + 2 / cfg.above) * EXPLICIT_STEP_S
         implicit = cfg.implicit_time / dt * (BE_ONE_NEWTON_STEP_S * math.sqrt(cfg.big / 10) / cfg.big
@@ -141,12 +145,14 @@ def stage_seconds(cfg, stage: int) -> float:
         return size * (explicit + implicit)
     if stage == 2:  # the convergence runs: about 70 x n0 steps, n0 = conv_time / (0.3 x the limit)
         d = type(cfg)()
-        n0 = lambda c: max(20, math.ceil(c.conv_time / (0.3 * limit_estimate(c.conv_n, c.E, c.rho, c.B))))
+        n0 = lambda c: max(20.0, c.conv_time / max(0.3 * limit_estimate(c.conv_n, c.E, c.rho, c.B), 1e-300))
         return STAGE2_SECONDS * n0(cfg) / n0(d) * max(1.0, cfg.conv_n ** 2 / d.conv_n ** 2)
     return 0.0
 
 
 def time_text(seconds: float) -> str:
+    if not math.isfinite(seconds):
+        return "forever (its time step is below the float range)"
     return (f"{seconds / 3600:.3g} h" if seconds >= 3600 else f"{seconds / 60:.0f} min" if seconds >= 60
             else f"{seconds:.0f} s")
 

@@ -44,6 +44,7 @@ class RodWavesConfig:
             raise ParameterError(
                 f"--nodes {self.nodes}: the default pulse width, 10 node spacings = {sigma:g} m, is more than 0.05 m "
                 f"(the pulse must be narrow next to the 1 m rod); use --nodes >= 201 or --width <= {0.05 / h:.3g}")
+        stages.check_work(self)  # first: a tiny --cfl would make the fit windows below astronomically long
         fewest = stages.fewest_fit_points(self)
         if fewest < stages.MIN_FIT_POINTS:
             raise ParameterError(
@@ -51,7 +52,6 @@ class RodWavesConfig:
                 f"(the pulse at nu = 1 crosses the middle of the rod in {stages.fit_window_steps(self)} steps at "
                 f"--nodes {self.nodes}); a fit needs at least {stages.MIN_FIT_POINTS}: use --record-every <= "
                 f"{stages.largest_record_every(self)}")
-        stages.check_work(self)
 
 
 LESSON = Lesson(

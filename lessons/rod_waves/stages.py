@@ -95,8 +95,9 @@ def stage_work(cfg, stage: int) -> float:
     n = cfg.nodes
     h = 1.0 / (n - 1)
     obs = lambda steps, every: steps / max(every, 1) * (OBSERVATION_WORK + CHUNK_WORK / n)
-    if stage == 2:
-        steps = [nsteps for nsteps, _, _ in _fit_windows(cfg)]
+    if stage == 2:  # (floats: a tiny --cfl gives astronomically many steps, refused, not an overflow)
+        per_nu = 1.0 / max(min(cfg.cfl, 1.0) * h, 1e-300)
+        steps = [0.5 / (0.25 * h), 0.5 / (0.5 * h), 0.5 / h, 0.5 * per_nu, 0.4 * per_nu]
         return n * sum(st + obs(st, cfg.record_every) for st in steps)
     if stage == 3:  # two recorded runs (launches of max(k, 100) steps), up to 14 bisection runs, backward Euler
         recorded = 2 * cfg.cfl_steps / max(cfg.record_every, 100) * CHUNK_WORK
@@ -107,6 +108,8 @@ def stage_work(cfg, stage: int) -> float:
 
 
 def work_text(work: float) -> str:
+    if not math.isfinite(work):
+        return "forever (its time step is below the float range)"
     seconds = work / WORK_RATE
     when = f"{seconds / 3600:.3g} h" if seconds >= 3600 else f"{seconds / 60:.0f} min" if seconds >= 60 else \
         f"{seconds:.0f} s"

@@ -114,7 +114,7 @@ def stage2_plan(cfg) -> dict:
     step = {"chain": STEP_S * max(1.0, cfg.chain_nodes / 12), "frame": STEP_S}
     seconds, longest = 0.0, 0
     for net, dt in dts.items():
-        wobble = int(round(wobble_time(net, dt) / (dt / 2)))  # the run at dt/2 is the longer
+        wobble = wobble_time(net, dt) / max(dt / 2, 1e-300)  # the run at dt/2 is the longer (a float: it may be huge)
         longest = max(longest, wobble)
         seconds += 2 * (N * step[net] + N / cfg.record_every * LAUNCH_S)  # the two symplectic runs
         seconds += 2 * 1.5 * wobble * step[net]  # each method at dt and dt/2
@@ -123,6 +123,8 @@ def stage2_plan(cfg) -> dict:
 
 
 def time_text(seconds: float) -> str:
+    if not math.isfinite(seconds):
+        return "forever (its time step is below the float range)"
     return (f"{seconds / 3600:.3g} h" if seconds >= 3600 else f"{seconds / 60:.0f} min" if seconds >= 60
             else f"{seconds:.0f} s")
 
