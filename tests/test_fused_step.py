@@ -1,43 +1,145 @@
-"""One-launch symplectic-Euler step (engine.integrators.kernels.one_launch_step): the same arithmetic as the
-generic five-kernel path, so the states agree bit for bit."""
+"""The one-launch cloth step (engine.integrators.kernels.cloth_step) does the generic path's
+arithmetic in another order of loops but the same order of terms per vertex, so the states agree
+bit for bit: symplectic Euler and velocity Verlet, with and without bending, for any number of
+vertex blocks, launched directly or through Taichi's own call."""
 import numpy as np
 import pytest
 
-from engine.integrators.explicit import SymplecticEuler, one_launch_plan as fused_symplectic_step
-from engine.stability import stable_dt_estimate
+from engine.integrators import kernels as K
+from engine.integrators.explicit import (SymplecticEuler, VelocityVerlet, cloth_blocks, cloth_plan, cloth_stepper,
+                                         one_launch_plan)
 from engine.model import Model
 from engine.scenes import cloth
+from engine.stability import stable_dt_estimate
+
+INTEGRATORS = {"symplectic-euler": SymplecticEuler, "velocity-verlet": VelocityVerlet}
 
 
-def run(model, v0, dt, n, fused):
+def run(model, v0, dt, n, method, fused):
     st = model.make_state(None, v0)
-    SymplecticEuler(fused).step(model, st, dt, n)
+    INTEGRATORS[method](fused).step(model, st, dt, n)
     s = st.numpy()
     return s.x, s.v, st.t
 
 
-@pytest.mark.parametrize("B,variant", [(1e-3, "notes"), (1e-3, "discrete-shells"), (0.0, "notes")])
-def test_fused_step_is_bitwise_the_generic_step(B, variant):
-    c = cloth(12, B=B, variant=variant)
-    model = c.model
-    assert fused_symplectic_step(model) is not None
-    v0 = 0.05 * np.random.default_rng(3).standard_normal((model.n, 3))
+def start(model, seed=3, scale=0.05):
+    return scale * np.random.default_rng(seed).standard_normal((model.n, 3))
+
+
+@pytest.mark.parametrize("method", list(INTEGRATORS))
+@pytest.mark.parametrize("B,variant", [(1e-3, "notes"), (1e-3, "bridson"), (0.0, "notes")])
+def test_fused_step_is_bitwise_the_generic_step(B, variant, method):
+    model = cloth(12, B=B, variant=variant).model
+    assert one_launch_plan(model) is not None
+    v0 = start(model)
     dt = 0.5 * stable_dt_estimate(model)
-    xa, va, ta = run(model, v0, dt, 150, True)
-    xb, vb, tb = run(model, v0, dt, 150, False)
+    xa, va, ta = run(model, v0, dt, 150, method, True)
+    xb, vb, tb = run(model, v0, dt, 150, method, False)
     assert np.array_equal(xa, xb) and np.array_equal(va, vb) and ta == tb
     assert np.abs(xa - model.X).max() > 1e-3  # it moved: the comparison is not vacuous
     pinned = model.pinned
     assert np.array_equal(xa[pinned], model.X[pinned]) and not va[pinned].any()
 
 
+@pytest.mark.parametrize("method", list(INTEGRATORS))
+def test_any_number_of_blocks_gives_the_same_bits(method):
+    """Blocks split the vertices; springs and hinges across a block boundary are computed by both
+    blocks, boundary vertices move after the loop. 1 block (one thread), 2, 5 and 9 (more than
+    the machine has threads: one thread does several) all give the generic path's state."""
+    c = cloth(16, B=1e-3, variant="discrete-shells")
+    model = c.model
+    v0 = start(model, seed=5)
+    dt = 0.5 * stable_dt_estimate(model)
+    x_ref, v_ref, _ = run(model, v0, dt, 40, method, False)
+    for nb in (1, 2, 5, 9):
+        I, F, n_boundary = cloth_plan(model, nb)
+        assert (n_boundary > 0) == (nb > 1)
+        step = cloth_stepper(model, nb)
+        st = model.make_state(None, v0)
+        if method == "velocity-verlet":
+            step(st, 0.0, "velocity-verlet-begin")
+        for _ in range(40):
+            step(st, dt, method)
+        s = st.numpy()
+        assert np.array_equal(s.x, x_ref) and np.array_equal(s.v, v_ref), nb
+
+
+@pytest.mark.parametrize("method", list(INTEGRATORS))
+def test_many_steps_in_one_launch_give_the_same_bits(method):
+    """step(n) runs all n steps in one launch (kernels.cloth_steps: each block stays on its thread and
+    the threads meet at a barrier where a step's loop would end): the same state as n launches of
+    one step and as the generic path. 24 x 24 vertices: two blocks on a two-thread runtime."""
+    from engine import runtime
+    model = cloth(24, B=1e-3).model
+    v0 = start(model, seed=13)
+    dt = 0.5 * stable_dt_estimate(model)
+    one = one_launch_plan(model)
+    st = model.make_state(None, v0)
+    if method == "velocity-verlet":
+        one(st, 0.0, "velocity-verlet-begin")
+    one(st, dt, method, 25)
+    x_ref, v_ref, _ = run(model, v0, dt, 25, method, False)
+    s = st.numpy()
+    assert np.array_equal(s.x, x_ref) and np.array_equal(s.v, v_ref)
+    assert cloth_blocks(model.n) == min(2, runtime.current().threads)
+
+
+def test_direct_launch_is_taichis_launch(monkeypatch):
+    """The bound launch sets the same arguments as Taichi's own kernel call: the same bits."""
+    model = cloth(10, B=1e-3).model
+    v0 = start(model, seed=7)
+    dt = 0.5 * stable_dt_estimate(model)
+    xa, va, _ = run(model, v0, dt, 30, "symplectic-euler", True)
+    monkeypatch.setattr(K, "DIRECT_LAUNCH", False)
+    xb, vb, _ = run(model, v0, dt, 30, "symplectic-euler", True)
+    assert np.array_equal(xa, xb) and np.array_equal(va, vb)
+
+
+def test_new_spring_coefficients_reach_the_fused_step():
+    """The plan copies c/L; SpringEnergy.set_coefficients makes the planner build a new one."""
+    c = cloth(10, B=1e-3)
+    model = c.model
+    v0 = start(model, seed=9)
+    dt = 0.25 * stable_dt_estimate(model)
+    run(model, v0, dt, 5, "symplectic-euler", True)   # builds the plan for the first c
+    c.springs.set_coefficients(2.0 * c.springs.c_np)
+    xa, va, _ = run(model, v0, dt, 30, "symplectic-euler", True)
+    xb, vb, _ = run(model, v0, dt, 30, "symplectic-euler", False)
+    assert np.array_equal(xa, xb) and np.array_equal(va, vb)
+
+
+def test_repeated_edges_and_an_unordered_incidence():
+    """Two springs between the same vertices: when both ends list them in the same order the block
+    sweep sums them in that order (fused = generic); when the ends list them in opposite orders
+    (edges (1, 2) and (2, 1): each end lists its own first) no single order serves both ends, so
+    the planner refuses and the step takes the generic path. So it does when the incidence is not
+    in neighbour order at all."""
+    X = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0.2], [2, 0.5, 0]])
+    E = [[0, 1], [1, 2], [2, 0], [1, 3], [3, 2], [3, 4], [4, 1], [1, 3]]
+    for edges, planned in ((E, True), (E + [[2, 1]], False)):
+        model = Model.from_springs(X, np.array(edges), k=50.0, mass=0.1, pinned=[0], gravity=[0, 0, -9.81])
+        assert (one_launch_plan(model) is not None) == planned
+        v0 = start(model, seed=11, scale=0.3)
+        xa, va, _ = run(model, v0, 1e-3, 200, "symplectic-euler", True)
+        xb, vb, _ = run(model, v0, 1e-3, 200, "symplectic-euler", False)
+        assert np.array_equal(xa, xb) and np.array_equal(va, vb) and np.abs(xa - X).max() > 1e-3
+
+    model = Model.from_springs(X, np.array(E), k=50.0, mass=0.1, pinned=[0])
+    sp = model.springs
+    off = sp.offsets_np
+    for arr in (sp.inc_other_np, sp.inc_edge_np):  # each vertex's incidences in reverse
+        for i in range(model.n):
+            arr[off[i]:off[i + 1]] = arr[off[i]:off[i + 1]][::-1].copy()
+    assert cloth_plan(model, 1) is None
+
+
 def test_models_without_springs_first_take_the_generic_path():
     c = cloth(6, B=1e-3)
     bending_only = Model(c.model.X, c.model.mass, c.model.pinned, c.model.gravity)
     bending_only.add_energy(c.bending)
-    assert fused_symplectic_step(bending_only) is None
+    assert one_launch_plan(bending_only) is None
     v0 = 0.01 * np.ones((bending_only.n, 3))
-    x, v, _ = run(bending_only, v0, 1e-4, 20, True)  # still steps, on the generic path:
-    xg, vg, _ = run(bending_only, v0, 1e-4, 20, False)  # bitwise what the generic path gives
+    x, v, _ = run(bending_only, v0, 1e-4, 20, "symplectic-euler", True)  # still steps, on the generic path:
+    xg, vg, _ = run(bending_only, v0, 1e-4, 20, "symplectic-euler", False)  # bitwise the generic path's
     assert np.array_equal(x, xg) and np.array_equal(v, vg)
     assert np.abs(x - bending_only.X).max() > 0

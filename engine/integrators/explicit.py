@@ -4,7 +4,8 @@ The update formulas (E1)-(E3) are written once, in :mod:`engine.integrators.kern
 integrator has ``step(model, state, dt, n_steps=1)`` and ``begin``/``advance`` for
 Python-driven runs (:mod:`engine.integrators.loop`). Which kernels a step launches is decided by a
 planner from the model's energies (:func:`one_launch_plan`, :func:`many_steps_plan`): a springs
-[+ one hinge energy] model takes one launch per symplectic-Euler step, a small spring-only model
+[+ one hinge energy] model takes one launch per symplectic-Euler or velocity-Verlet step
+(:func:`cloth_plan` lays its arrays out for it), a small spring-only model run by the run loop
 many steps per launch; anything else the generic path (each energy's force kernels, then one
 update pass). Each fast path is pinned bitwise to the generic path by tests.
 
@@ -20,34 +21,25 @@ import numpy as np
 import taichi as ti
 
 from engine.constants import MANY_STEPS_BELOW
-from engine.fields import scratch_vec3, zero_vec3
+from engine.fields import int_ndarray, scalar_ndarray, scratch_vec3, vec3_ndarray, zero_vec3
 from engine.integrators import kernels as K
 from engine.integrators.monitor import Monitor
 from engine.model import Model, State
 
 
 # --------------------------------------------------------------------------------------------
-# The planner (its plans and dummy arrays are kept here, not on the model)
+# The planner (its plans and work arrays are kept here, not on the model)
 # --------------------------------------------------------------------------------------------
 
 _work: "weakref.WeakKeyDictionary[Model, dict]" = weakref.WeakKeyDictionary()
-
-
-def _dummies(model: Model) -> dict:
-    d = _work.setdefault(model, {})
-    if "dummy_h" not in d:
-        d["dummy_h"] = ti.ndarray(dtype=ti.i32, shape=(1, 4))
-        d["dummy_s"] = ti.ndarray(dtype=float, shape=1)
-        d["dummy_i"] = ti.ndarray(dtype=ti.i32, shape=1)
-        d["dummy_w"] = ti.ndarray(dtype=ti.math.vec3, shape=(1, 4))
-    return d
 
 
 _plans: "weakref.WeakKeyDictionary[Model, dict]" = weakref.WeakKeyDictionary()
 
 
 def _plan(model: Model, what: str, build):
-    key = tuple(id(e) for e in model.energies)
+    # keyed by the energies and their coefficient arrays (SpringEnergy.set_coefficients replaces c_np)
+    key = tuple((id(e), id(getattr(e, "c_np", None))) for e in model.energies)
     d = _plans.setdefault(model, {})
     cached = d.get(what)
     if cached is None or cached[0] != key:
@@ -69,26 +61,171 @@ def _signature(model: Model) -> tuple:
     return ()
 
 
-def _build_one_launch(model: Model):
+def cloth_blocks(n: int) -> int:
+    """How many vertex blocks the cloth step splits a model of n vertices into: one per thread
+    (Taichi gives each CPU thread one contiguous share of a parallel loop, so more blocks would only
+    recompute more boundary terms), one below CLOTH_BLOCK_MIN vertices per thread. Any number of
+    blocks gives bitwise the same result."""
+    return int(max(1, min(_threads(), n // CLOTH_BLOCK_MIN)))
+
+
+CLOTH_BLOCK_MIN = 256  # vertices per block at least: below it a second thread costs more than it gains
+
+
+def cloth_plan(model: Model, n_blocks: int):
+    """The arrays of :func:`engine.integrators.kernels.cloth_step` for a springs [+ one hinge energy]
+    model split into ``n_blocks`` contiguous vertex blocks: (I, F, boundary count), or None when the
+    springs' incidence is not ordered by neighbour index (then no block order reproduces the
+    generic path's sums; the generic path is taken).
+
+    Per vertex i, the generic path sums its springs in the incidence order (ascending neighbour j)
+    and its hinges in ascending hinge index. The block kernel splits i's springs into those to j
+    below i's block (``in``: computed by i's block before its sweep), to j in the block below i
+    (computed once, by j, when the sweep passes j) and to j above i (``up``: computed by i); the
+    three come in ascending j, so the sum is the same, term for term and in the same order."""
+    springs = model.energies[0]
+    bending = model.energies[1] if len(model.energies) > 1 else None
+    n = model.n
+    nb = int(max(1, min(n_blocks, n)))
+    vb = np.linspace(0, n, nb + 1).round().astype(np.int64)
+    blk = np.repeat(np.arange(nb), np.diff(vb))
+    lo_v, hi_v = vb[blk], vb[blk + 1]
+
+    off, other, eid = springs.offsets_np, springs.inc_other_np, springs.inc_edge_np
+    owner = np.repeat(np.arange(n), np.diff(off))
+    cat = np.where(other < lo_v[owner], 0, np.where(other < owner, 1, 2))  # in, in-block below, up
+    if len(cat) > 1 and np.any((cat[1:] < cat[:-1]) & (owner[1:] == owner[:-1])):
+        return None
+    up = cat == 2
+    inc = cat == 0
+    # the in-block-below terms reach i in the order the sweep computes them (j ascending, then j's
+    # up order): it must be i's incidence order, also for repeated edges between the same two vertices
+    up_rank = np.full(len(eid), -1, dtype=np.int64)
+    up_rank[up] = np.arange(int(up.sum()))
+    by_edge = np.argsort(eid, kind="stable")
+    mate = np.empty(len(eid), dtype=np.int64)
+    mate[by_edge[0::2]], mate[by_edge[1::2]] = by_edge[1::2], by_edge[0::2]
+    below = np.flatnonzero(cat == 1)
+    r = up_rank[mate[below]]
+    if np.any(r < 0) or np.any((r[1:] <= r[:-1]) & (owner[below][1:] == owner[below][:-1])):
+        return None
+
+    cl, il = springs.c_np / springs.L_np, 1.0 / springs.L_np
+    bnd = np.zeros(n, dtype=bool)
+    bnd[other[inc]] = True
+    bnd[other[up & (other >= hi_v[owner])]] = True
+    if bending is not None and bending.n_hinges:
+        H = bending.hinges_np
+        hb = blk[H]
+        pairs = np.unique(np.stack([hb.reshape(-1), np.repeat(np.arange(len(H)), 4)], axis=1), axis=0)
+        h_list = pairs[:, 1]
+        h_off = np.searchsorted(pairs[:, 0], np.arange(nb + 1))
+        crossing = (hb != hb[:, :1]).any(axis=1)
+        bnd[H[crossing].reshape(-1)] = True
+        hv, hf = H[h_list].reshape(-1), np.stack([bending.k[h_list], bending.theta_bar[h_list]], 1).reshape(-1)
+    else:
+        h_off, hv, hf = np.zeros(nb + 1, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0)
+
+    def csr(mask):
+        return np.concatenate([[0], np.cumsum(np.bincount(owner[mask], minlength=n))])
+
+    bnd_list = np.flatnonzero(bnd)
+    sections = [vb, csr(inc), other[inc], csr(up), other[up], bnd.astype(np.int64), bnd_list, None,
+                h_off, hv, np.searchsorted(bnd_list, vb)]
+    header = np.zeros(K.HEADER, dtype=np.int64)
+    header[K.H_NB], header[K.H_N] = nb, n
+    parts, pos = [header], K.HEADER
+    slots = (K.H_VB, K.H_IN_OFF, K.H_IN_J, K.H_UP_OFF, K.H_UP_C, K.H_BFLAG, K.H_BND, K.H_NBND, K.H_HOFF, K.H_HV,
+             K.H_BOFF)
+    for slot, arr in zip(slots, sections):
+        if arr is None:
+            header[slot] = int(bnd.sum())
+            continue
+        header[slot] = pos
+        parts.append(arr)
+        pos += len(arr)
+    inv_mass = model.inv_mass_nd.to_numpy().astype(np.float64)[:n]
+    fparts = [inv_mass, np.stack([cl[eid[inc]], il[eid[inc]]], 1).reshape(-1),
+              np.stack([cl[eid[up]], il[eid[up]]], 1).reshape(-1), hf, np.asarray(model.gravity, dtype=np.float64)]
+    fpos = np.cumsum([0] + [len(a) for a in fparts])
+    header[K.H_F_IN], header[K.H_F_UP], header[K.H_F_H], header[K.H_F_G] = fpos[1], fpos[2], fpos[3], fpos[4]
+    header[K.H_MODE] = int(bending.mode) if bending is not None else 0
+    I = np.concatenate(parts)
+    if I.max(initial=0) >= 2 ** 31 or fpos[-1] >= 2 ** 31:
+        return None
+    return int_ndarray(I), scalar_ndarray(np.concatenate(fparts)), int(bnd.sum())
+
+
+def _build_cloth_step(model: Model):
+    return cloth_stepper(model, cloth_blocks(model.n))
+
+
+def cloth_stepper(model: Model, n_blocks: int):
+    """A new ``step(state, dt, method)`` (see :func:`one_launch_plan`) over ``n_blocks`` vertex blocks,
+    or None when the model has no cloth plan; :func:`one_launch_plan` keeps the one for this
+    machine's thread count."""
     sig = _signature(model)
     if not sig:
         return None
-    sargs = model.energies[0].force_args()
-    if sig == ("springs", "hinges"):
-        hargs = (*model.energies[1].force_args(), True)
-    else:
-        d = _dummies(model)
-        hargs = (d["dummy_h"], d["dummy_s"], d["dummy_s"], 0, d["dummy_w"], d["dummy_i"], d["dummy_i"], False)
+    plan = cloth_plan(model, n_blocks)
+    if plan is None:
+        return None
+    I, F, n_boundary = plan
+    n = model.n
+    d = _work.setdefault(model, {})
+    w = d.get("cloth_w")
+    if w is None:  # per model, not per plan: the Verlet acceleration in it outlives a rebuilt plan
+        w = d["cloth_w"] = vec3_ndarray(4 * n)  # spring sums, hinge sums, boundary x, Verlet acceleration
+    sync = d.get("cloth_sync")
+    if sync is None:
+        sync = d["cloth_sync"] = int_ndarray(np.zeros(2))
+    with_h = sig == ("springs", "hinges")
+    launch = {what: K.BoundKernel(K.cloth_step, (w, I, F), (what, with_h, n_boundary > 0))
+              for what in (K.CLOTH_SE, K.CLOTH_VV, K.CLOTH_VV_BEGIN)}
+    codes = {"symplectic-euler": K.CLOTH_SE, "velocity-verlet": K.CLOTH_VV, "velocity-verlet-begin": K.CLOTH_VV_BEGIN}
+    # many steps per launch only with a thread for every block (cloth_steps' barrier needs them all running)
+    nb = int(I.to_numpy()[K.H_NB])
+    multi = {what: K.BoundKernel(K.cloth_steps, (w, I, F, sync), (what, with_h))
+             for what in (K.CLOTH_SE, K.CLOTH_VV)} if nb <= _threads() else {}
 
-    def step(state, dt):
-        K.one_launch_step(state.x, state.v, model.inv_mass_nd, model.gravity_vec, dt, *sargs, *hargs)
+    def step(state, dt, method="symplectic-euler", n_steps=1):
+        if state.x.shape[0] != n:
+            raise ValueError(f"state has {state.x.shape[0]} vertices, model has {n}")
+        what = codes[method]
+        dt = float(dt)
+        left = int(n_steps)
+        if left > 1 and what in multi:
+            while left > 0:
+                k = min(left, MULTI_STEP_CHUNK)
+                if multi[what](state.x, state.v, dt, k):
+                    raise RuntimeError(f"the {nb} threads of the many-steps cloth kernel did not meet at a step's end "
+                                       f"within {K.SPIN_LIMIT} polls (the state is part-way through a step); "
+                                       f"is every CPU thread of the runtime really running? ELASTIC_THREADS=1 avoids it")
+                left -= k
+            return
+        for _ in range(left):
+            launch[what](state.x, state.v, dt)
     return step
 
 
+MULTI_STEP_CHUNK = 1 << 20  # steps per cloth_steps launch at most (its barrier counter stays far below 2^31)
+
+
+def _threads() -> int:
+    from engine import runtime
+    info = runtime.current()
+    return 1 if info is None else int(info.threads)
+
+
 def one_launch_plan(model: Model):
-    """``step(state, dt)``: one symplectic-Euler step in one launch, or None when the model's energies
-    are not springs [+ one hinge energy] in that order."""
-    return _plan(model, "one_launch", _build_one_launch)
+    """``step(state, dt, method="symplectic-euler", n_steps=1)``: ``n_steps`` steps of ``method``, one
+    launch of :func:`engine.integrators.kernels.cloth_step` each, or all in one launch of
+    :func:`engine.integrators.kernels.cloth_steps` when every block has a thread; None when the
+    model's energies are not springs [+ one hinge energy] in that order. Methods:
+    "symplectic-euler", "velocity-verlet" (kick-drift, then force-kick; the acceleration is carried
+    in the model's work array) and "velocity-verlet-begin" (that acceleration for the current
+    state, dt = 0). ``state.t`` is the caller's to advance."""
+    return _plan(model, "one_launch", _build_cloth_step)
 
 
 def _build_many_steps(model: Model):
@@ -202,7 +339,7 @@ class SymplecticEuler(ExplicitIntegrator):
         if self.fused:
             one_launch = one_launch_plan(model)
             if one_launch is not None:
-                one_launch(state, float(dt))
+                one_launch(state, dt, self.name)
                 state.t += dt
                 return
         f = self._elastic_forces(model, state)
@@ -210,19 +347,38 @@ class SymplecticEuler(ExplicitIntegrator):
                         K.STEP)
         state.t += dt
 
+    def step(self, model, state, dt, n_steps=1):
+        _fused_steps(self, model, state, dt, n_steps)
+
 
 class VelocityVerlet(ExplicitIntegrator):
     """Kick-drift-kick.  The acceleration a(x) is computed in :meth:`begin` (one extra force
-    evaluation per ``step`` call, not per step) and then carried from step to step."""
+    evaluation per ``step`` call, not per step) and then carried from step to step. ``fused``
+    (default): springs [+ one hinge energy] models take one kernel launch per step
+    (:func:`one_launch_plan`, bitwise the same result); others the generic path."""
 
     name = "velocity-verlet"
 
+    def __init__(self, fused: bool = True):
+        self.fused = bool(fused)
+
     def begin(self, model, state):
+        if self.fused:
+            one_launch = one_launch_plan(model)
+            if one_launch is not None:
+                one_launch(state, 0.0, "velocity-verlet-begin")
+                return
         f = self._elastic_forces(model, state)
         K.update_kernel(state.x, state.v, f, scratch_vec3(model, "explicit_a"), model.inv_mass_nd, model.gravity_vec, 0.0,
                         K.VELOCITY_VERLET, K.ACCEL_KICK)
 
     def advance(self, model, state, dt):
+        if self.fused:
+            one_launch = one_launch_plan(model)
+            if one_launch is not None:
+                one_launch(state, dt, self.name)
+                state.t += dt
+                return
         a = scratch_vec3(model, "explicit_a")
         K.update_kernel(state.x, state.v, a, a, model.inv_mass_nd, model.gravity_vec, dt, K.VELOCITY_VERLET,
                         K.KICK_DRIFT)
@@ -230,6 +386,26 @@ class VelocityVerlet(ExplicitIntegrator):
         K.update_kernel(state.x, state.v, f, a, model.inv_mass_nd, model.gravity_vec, 0.5 * dt, K.VELOCITY_VERLET,
                         K.ACCEL_KICK)
         state.t += dt
+
+    def step(self, model, state, dt, n_steps=1):
+        _fused_steps(self, model, state, dt, n_steps)
+
+
+def _fused_steps(integ, model, state, dt, n_steps):
+    """``integ.step`` for the fused integrators: ``begin``, then all ``n_steps`` steps in one call of the
+    cloth plan (one launch when it can) or, without a plan, ``advance`` per step; ``state.t``
+    advances step by step either way (the same float sums)."""
+    dt = float(dt)
+    n_steps = int(n_steps)
+    one_launch = one_launch_plan(model) if integ.fused else None
+    if one_launch is None:
+        ExplicitIntegrator.step(integ, model, state, dt, n_steps)
+        return
+    integ.begin(model, state)
+    if n_steps > 0:
+        one_launch(state, dt, integ.name, n_steps)
+        for _ in range(n_steps):
+            state.t += dt
 
 
 def run(model: Model, state: State, dt: float, n_steps: int, integrator="symplectic-euler",

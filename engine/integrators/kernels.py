@@ -8,15 +8,19 @@ vertices and a = 0, v = 0 for pinned ones (inverse mass 0):
   velocity Verlet    v* = v + dt/2 a(x) ;     x+ = x + dt v* ;   v+ = v* + dt/2 a(x+)              (E3)
                      (kick-drift-kick; a(x+) is kept for the next step)
 
-:func:`update` is the only place these formulas are written; every kernel below calls it:
+:func:`vertex_update` is the only place these formulas are written; every kernel below calls it
+(directly or through :func:`update`, its in-place form):
 
 * :func:`update_kernel` - one pass over the vertices with the forces already in ``f`` (the
   generic path: any energies, their own force kernels first);
-* :func:`one_launch_step` - a symplectic-Euler step of a springs [+ one hinge energy] model as the
-  consecutive loops of ONE kernel (per hinge: bending force vectors; per vertex: spring gather +
-  hinge gather + kick; per vertex: drift). A CPU kernel launch costs ~0.1 ms, which dominates
-  small meshes; the forces are summed in the same order as the generic path (springs, then
-  bending), so the states are bitwise the same (tested);
+* :func:`cloth_step` - a symplectic-Euler or velocity-Verlet step of a springs [+ one hinge
+  energy] model in ONE launch with ONE parallel loop, over vertex blocks (one per thread): per
+  block, the springs reaching into it from below, its hinges, then a sweep over its vertices in
+  order that computes each spring once (its force goes to both ends), completes each vertex's
+  force and updates it (:func:`_cloth_block`). The terms of every vertex are summed in the order
+  of the generic path's gathers (springs by neighbour, then hinges by index), so the states are
+  bitwise the same for any number of blocks and threads (tested). Its arguments are bound once
+  (:class:`BoundKernel`): a step costs ~30 us of launch instead of ~0.3 ms;
 * :func:`many_steps` - many steps of a spring-only model in ONE launch (the step loop
   serialised, every inner loop serial), writing each step's kinetic and potential energy and
   stopping at the first step whose total is not finite or above the bound. For small models
@@ -24,17 +28,19 @@ vertices and a = 0, v = 0 for pinned ones (inverse mass 0):
 * :func:`axial_steps` - the same for the rod along its axis, one coordinate per node, backward
   Euler included (engine.solvers.thomas).
 
+No kernel uses float atomics: in Taichi ``a[j] += ...`` in a parallel loop is an atomic add
+unless j is the loop index, so the block kernels write ``a[j] = a[j] + ...``.
+
 Method codes: :data:`METHODS` is the one table of them.
 """
 import numpy as np
 import taichi as ti
 
 from engine.energies.axial import axial_force, axial_potential
-from engine.energies.bending import hinge_force_vectors, hinge_gather
+from engine.energies.bending import _energy_terms, _theta, _theta_grad
 from engine.energies.springs import spring_gather
 from engine.solvers.thomas import axial_backward_euler
-from engine.fields import edge_array, int_array, scalar_array, vec3_array, vec3_array2
-from engine.fields import int_array2 as hinge_array
+from engine.fields import edge_array, int_array, scalar_array, vec3_array
 
 FORWARD_EULER, SYMPLECTIC_EULER, VELOCITY_VERLET, BACKWARD_EULER = 0, 1, 2, 3
 METHODS = {"forward-euler": FORWARD_EULER, "symplectic-euler": SYMPLECTIC_EULER,
@@ -50,41 +56,58 @@ ACCEL_KICK = 4  # (E3) a = M^-1 f + g ; v += h a  (h = dt/2; h = 0 only computes
 
 
 @ti.func
-def update(method: ti.template(), phase: ti.template(), i, x: ti.template(), v: ti.template(), f_i,
-           a: ti.template(), inv_mass: ti.template(), g, dt, zero):
-    """The per-vertex update of vertex i: (E1), (E2) or a half of (E3) (see the phase codes).
-    ``f_i`` is the force on vertex i; pinned vertices (inv_mass 0) keep x and get v = ``zero`` (a
-    vec3 for the 3D models, a scalar for the rod along its axis)."""
+def vertex_update(method: ti.template(), phase: ti.template(), xi, vi, ai, f_i, inv_m, g, dt, zero):
+    """(E1), (E2) or a half of (E3) for one vertex, on values: returns the new (x_i, v_i, a_i).
+    ``f_i`` is the force on the vertex, ``inv_m`` its inverse mass; a pinned vertex (inv_m = 0)
+    keeps x and gets v = ``zero`` (a vec3 for the 3D models, a scalar for the rod along its axis)."""
     if ti.static(method == FORWARD_EULER):
-        if inv_mass[i] > 0.0:
-            x[i] += dt * v[i]
-            v[i] += dt * (inv_mass[i] * f_i + g)
+        if inv_m > 0.0:
+            xi = xi + dt * vi
+            vi = vi + dt * (inv_m * f_i + g)
         else:
-            v[i] = zero
+            vi = zero
     elif ti.static(method == SYMPLECTIC_EULER):
         if ti.static(phase == DRIFT):
-            if inv_mass[i] > 0.0:
-                x[i] += dt * v[i]
+            if inv_m > 0.0:
+                xi = xi + dt * vi
         else:
-            if inv_mass[i] > 0.0:
-                v[i] += dt * (inv_mass[i] * f_i + g)
+            if inv_m > 0.0:
+                vi = vi + dt * (inv_m * f_i + g)
                 if ti.static(phase == STEP):
-                    x[i] += dt * v[i]
+                    xi = xi + dt * vi
             else:
-                v[i] = zero
+                vi = zero
     elif ti.static(phase == KICK_DRIFT):
-        if inv_mass[i] > 0.0:
-            v[i] += 0.5 * dt * a[i]
-            x[i] += dt * v[i]
+        if inv_m > 0.0:
+            vi = vi + 0.5 * dt * ai
+            xi = xi + dt * vi
         else:
-            v[i] = zero
+            vi = zero
     else:  # ACCEL_KICK, dt = the half step
-        if inv_mass[i] > 0.0:
-            a[i] = inv_mass[i] * f_i + g
-            v[i] += dt * a[i]
+        if inv_m > 0.0:
+            ai = inv_m * f_i + g
+            vi = vi + dt * ai
         else:
-            a[i] = zero
-            v[i] = zero
+            ai = zero
+            vi = zero
+    return xi, vi, ai
+
+
+@ti.func
+def update(method: ti.template(), phase: ti.template(), i, x: ti.template(), v: ti.template(), f_i,
+           a: ti.template(), inv_mass: ti.template(), g, dt, zero):
+    """:func:`vertex_update` of vertex i in place: reads x[i], v[i] (and a[i]), writes back what the
+    phase changes. Plain loads and stores (no atomics, whatever loop i comes from)."""
+    ai = zero
+    if ti.static(method == VELOCITY_VERLET and phase == KICK_DRIFT):
+        ai = a[i]
+    xi, vi, ai = vertex_update(method, phase, x[i], v[i], ai, f_i, inv_mass[i], g, dt, zero)
+    if ti.static(method == FORWARD_EULER or phase in (STEP, DRIFT, KICK_DRIFT)):
+        x[i] = xi
+    if ti.static(method == FORWARD_EULER or phase != DRIFT):
+        v[i] = vi
+    if ti.static(method == VELOCITY_VERLET and phase == ACCEL_KICK):
+        a[i] = ai
 
 
 @ti.kernel
@@ -94,23 +117,309 @@ def update_kernel(x: vec3_array, v: vec3_array, f: vec3_array, a: vec3_array, in
         update(method, phase, i, x, v, f[i], a, inv_mass, g, dt, ti.math.vec3(0.0))
 
 
-@ti.kernel
-def one_launch_step(x: vec3_array, v: vec3_array, inv_mass: scalar_array, g: ti.math.vec3, dt: float,
-                    offsets: int_array, inc_other: int_array, inc_inv_L: scalar_array, inc_c_over_L: scalar_array,
-                    hinges: hinge_array, k: scalar_array, theta_bar: scalar_array, mode: ti.i32, fh: vec3_array2,
-                    h_offsets: int_array, h_entries: int_array, with_hinges: ti.template()):
-    # (E2) for springs [+ hinges]: forces summed as the generic path does (springs, then bending)
-    if ti.static(with_hinges):
-        for h in range(hinges.shape[0]):
-            hinge_force_vectors(x, hinges, k, theta_bar, mode, fh, h)
-    for i in range(x.shape[0]):
-        f = ti.math.vec3(0.0)
-        f += spring_gather(x, i, offsets, inc_other, inc_inv_L, inc_c_over_L)
+# --------------------------------------------------------------------------------------------
+# Launching a kernel whose argument types never change
+# --------------------------------------------------------------------------------------------
+
+DIRECT_LAUNCH = True  # False: every BoundKernel call goes through Taichi's own kernel call
+
+
+class BoundKernel:
+    """A Taichi kernel called many times as ``bound(*head)`` = ``kernel(*head, *tail, *templates)``:
+    ``tail`` (ndarrays, ints, floats) and ``templates`` are fixed when it is made, ``head`` changes
+    from call to call (ndarrays of unchanging kinds, e.g. a state's x and v, and Python scalars).
+
+    Taichi 1.7.4's kernel call spends Python time on every call mapping each argument's type to a
+    compiled instance and checking it: about 5-20 us per ndarray argument, 0.1-0.3 ms for a kernel
+    of 16 ndarrays, more than the arithmetic of a 64 x 64 cloth step. A BoundKernel looks the
+    compiled instance up with Taichi's own lookup (which checks every argument against the
+    kernel's annotations) whenever the head's ndarrays are other objects than at the last call, and
+    otherwise fills the launch context itself, with the calls Taichi's call makes for these argument
+    kinds (ndarray without gradient, int, float), and launches that compiled instance: the same
+    machine code on the same arguments. With Taichi other than 1.7.4, or with DIRECT_LAUNCH False,
+    every call is Taichi's own call. Kernels returning nothing or one i32 only."""
+
+    def __init__(self, kernel, tail=(), templates=()):
+        self.kernel = kernel
+        self.tail = tuple(tail)
+        self.templates = tuple(templates)
+        self._prim = getattr(kernel, "_primal", None)
+        self._direct = self._prim is not None and tuple(ti.__version__) == (1, 7, 4)
+        self._head_arrays = None
+        self._launch = None
+
+    def public(self, *head):
+        """The same launch through Taichi's own kernel call."""
+        return self.kernel(*head, *self.tail, *self.templates)
+
+    def __call__(self, *head):
+        if not (DIRECT_LAUNCH and self._direct):
+            return self.kernel(*head, *self.tail, *self.templates)
+        arrays = self._head_arrays
+        if arrays is None or len(head) != len(arrays) or any(
+                h is not a for h, a in zip(head, arrays) if a is not None):
+            self._bind(head)
+        return self._launch(head)
+
+    def _bind(self, head):
+        from taichi.lang import impl
+        prim = self._prim
+        args = (*head, *self.tail)
+        compiled = prim.compiled_kernels[prim.ensure_compiled(*args, *self.templates)]
+        prog = impl.get_runtime().prog
+        config, caps = prog.config(), prog.get_device_caps()
+        kinds = []
+        for a in args:
+            if isinstance(a, ti.Ndarray):
+                if a.grad is not None:
+                    raise TypeError(f"{prim.func.__name__}: BoundKernel does not pass ndarrays with gradients")
+                kinds.append(0)
+            elif isinstance(a, (int, np.integer)) and not isinstance(a, (bool, np.bool_)):
+                kinds.append(1)
+            elif isinstance(a, (float, np.floating)):
+                kinds.append(2)
+            else:
+                raise TypeError(f"{prim.func.__name__}: BoundKernel passes ndarrays, ints and floats, "
+                                f"not {type(a).__name__}")
+        ret = prim.return_type
+        has_ret = ret is not None
+        if has_ret and (len(ret) != 1 or ret[0] not in (ti.i32, int)):
+            raise TypeError(f"{prim.func.__name__}: BoundKernel launches kernels returning nothing or one i32")
+        nh = len(head)
+        head_kinds = tuple(enumerate(kinds[:nh]))
+        tail_arrays = tuple(((nh + j,), a.arr) for j, a in enumerate(self.tail) if kinds[nh + j] == 0)
+        tail_ints = tuple(((nh + j,), int(a)) for j, a in enumerate(self.tail) if kinds[nh + j] == 1)
+        tail_floats = tuple(((nh + j,), float(a)) for j, a in enumerate(self.tail) if kinds[nh + j] == 2)
+
+        def launch(head):
+            ctx = compiled.make_launch_context()
+            for i, kind in head_kinds:
+                if kind == 0:
+                    ctx.set_arg_ndarray((i,), head[i].arr)
+                elif kind == 1:
+                    ctx.set_arg_int((i,), int(head[i]))
+                else:
+                    ctx.set_arg_float((i,), float(head[i]))
+            for idx, arr in tail_arrays:
+                ctx.set_arg_ndarray(idx, arr)
+            for idx, val in tail_ints:
+                ctx.set_arg_int(idx, val)
+            for idx, val in tail_floats:
+                ctx.set_arg_float(idx, val)
+            prog.launch_kernel(prog.compile_kernel(config, caps, compiled), ctx)
+            if has_ret:
+                ti.sync()
+                return ctx.get_struct_ret_int((0,))
+            return None
+
+        self._launch = launch
+        self._head_arrays = tuple(h if isinstance(h, ti.Ndarray) else None for h in head)
+
+
+# --------------------------------------------------------------------------------------------
+# The cloth step: springs [+ one hinge energy], one parallel loop over vertex blocks per step
+# --------------------------------------------------------------------------------------------
+# Layout of the plan's int array ``I`` (built by engine.integrators.explicit.cloth_plan): a header
+# of section starts, then the sections. The float array ``F`` holds the per-entry coefficients.
+(H_NB, H_N, H_VB, H_IN_OFF, H_IN_J, H_UP_OFF, H_UP_C, H_BFLAG, H_BND, H_NBND, H_HOFF, H_HV, H_F_IN, H_F_UP,
+ H_F_H, H_F_G, H_MODE, H_BOFF) = range(18)
+HEADER = 18
+BLOCK_SLOTS = 512  # loop iterations per block (see cloth_step)
+# what one cloth_step launch does
+CLOTH_SE, CLOTH_VV, CLOTH_VV_BEGIN = 0, 1, 2
+
+
+@ti.func
+def _spring_term(d, c_over_L, inv_L):
+    """(S2) of one spring seen from the end the edge vector d = x_i - x_j starts at: the term that
+    :func:`engine.energies.springs.spring_gather` subtracts (zero for l = 0, as there)."""
+    t = ti.math.vec3(0.0)
+    l = d.norm()
+    if l > 0.0:
+        t = c_over_L * (inv_L - 1.0 / l) * d
+    return t
+
+
+@ti.func
+def _hinge_forces(x: ti.template(), v0, v1, w0, w1, k, theta_bar, mode):
+    """-dW_h/dx of one hinge on its slots (v0, v1, w0, w1): the arithmetic of
+    :func:`engine.energies.bending.hinge_force_vectors` (frame, (A1), (W1)/(W2), (G1)-(G3))."""
+    xv0 = x[v0]
+    e = x[v1] - xv0
+    a0 = x[w0] - xv0
+    a1 = x[w1] - xv0
+    W, W1, W2 = _energy_terms(_theta(e, a0, a1), k, theta_bar, mode)
+    g = _theta_grad(e, a0, a1)
+    return -W1 * g[0], -W1 * g[1], -W1 * g[2], -W1 * g[3]
+
+
+@ti.func
+def _cloth_block(b, x: ti.template(), v: ti.template(), w: ti.template(), I: ti.template(), F: ti.template(), dt,
+                 what: ti.template(), with_hinges: ti.template()):
+    """Forces and update of the vertices [lo, hi) of block b. Each vertex's forces are summed in the
+    order of the generic path's gathers (springs by ascending neighbour index, then hinges by
+    ascending hinge index), so the result is bitwise the generic path's for any partition:
+
+    1. per vertex: w[i] = the springs to neighbours below the block (ascending), computed here;
+       w[n + i] = 0 (its hinge sum);
+    2. per hinge touching the block (ascending): its four forces, added to the block's slots;
+    3. per vertex, ascending: the springs to neighbours above i, each computed once: subtracted
+       from i's sum and, if the neighbour is in the block, added to its w (it comes later, and
+       its lower neighbours must come first: they do, since they are all below it); then i's
+       forces are complete and i is updated. (E2): an interior vertex (read by no other block)
+       drifts in place, a boundary vertex's new x goes to w[2n + i] (copied after the loop).
+       (E3) ACCEL_KICK: a (in w[3n + i]) and v only."""
+    n = I[H_N]
+    g = ti.math.vec3(F[I[H_F_G]], F[I[H_F_G] + 1], F[I[H_F_G] + 2])
+    mode = I[H_MODE]
+    lo = I[I[H_VB] + b]
+    hi = I[I[H_VB] + b + 1]
+    in_off = I[H_IN_OFF]
+    in_j = I[H_IN_J]
+    f_in = I[H_F_IN]
+    for i in range(lo, hi):
+        acc = ti.math.vec3(0.0)
+        xi = x[i]
+        for q in range(I[in_off + i], I[in_off + i + 1]):
+            acc -= _spring_term(xi - x[I[in_j + q]], F[f_in + 2 * q], F[f_in + 2 * q + 1])
+        w[i] = acc
         if ti.static(with_hinges):
-            f += hinge_gather(fh, h_offsets, h_entries, i)
-        update(SYMPLECTIC_EULER, KICK, i, x, v, f, v, inv_mass, g, dt, ti.math.vec3(0.0))
-    for i in range(x.shape[0]):
-        update(SYMPLECTIC_EULER, DRIFT, i, x, v, ti.math.vec3(0.0), v, inv_mass, g, dt, ti.math.vec3(0.0))
+            w[n + i] = ti.math.vec3(0.0)
+    if ti.static(with_hinges):
+        hv = I[H_HV]
+        f_h = I[H_F_H]
+        for q in range(I[I[H_HOFF] + b], I[I[H_HOFF] + b + 1]):
+            s0 = I[hv + 4 * q]
+            s1 = I[hv + 4 * q + 1]
+            s2 = I[hv + 4 * q + 2]
+            s3 = I[hv + 4 * q + 3]
+            f0, f1, f2, f3 = _hinge_forces(x, s0, s1, s2, s3, F[f_h + 2 * q], F[f_h + 2 * q + 1], mode)
+            if lo <= s0 and s0 < hi:
+                w[n + s0] = w[n + s0] + f0
+            if lo <= s1 and s1 < hi:
+                w[n + s1] = w[n + s1] + f1
+            if lo <= s2 and s2 < hi:
+                w[n + s2] = w[n + s2] + f2
+            if lo <= s3 and s3 < hi:
+                w[n + s3] = w[n + s3] + f3
+    up_off = I[H_UP_OFF]
+    up_c = I[H_UP_C]
+    f_up = I[H_F_UP]
+    for i in range(lo, hi):
+        acc = w[i]
+        xi = x[i]
+        for q in range(I[up_off + i], I[up_off + i + 1]):
+            c = I[up_c + q]
+            t = _spring_term(xi - x[c], F[f_up + 2 * q], F[f_up + 2 * q + 1])
+            acc -= t
+            if c < hi:
+                w[c] = w[c] + t
+        f = ti.math.vec3(0.0)
+        f += acc
+        if ti.static(with_hinges):
+            f += w[n + i]
+        if ti.static(what == CLOTH_SE):
+            xn, vn, an = vertex_update(SYMPLECTIC_EULER, STEP, xi, v[i], xi, f, F[i], g, dt, ti.math.vec3(0.0))
+            v[i] = vn
+            if I[I[H_BFLAG] + i] != 0:
+                w[2 * n + i] = xn
+            else:
+                x[i] = xn
+        else:
+            xn, vn, an = vertex_update(VELOCITY_VERLET, ACCEL_KICK, xi, v[i], xi, f, F[i], g, 0.5 * dt,
+                                       ti.math.vec3(0.0))
+            v[i] = vn
+            w[3 * n + i] = an
+
+
+@ti.kernel
+def cloth_step(x: vec3_array, v: vec3_array, dt: float, w: vec3_array, I: int_array, F: scalar_array,
+               what: ti.template(), with_hinges: ti.template(), fixup: ti.template()):
+    """One step of symplectic Euler (what = CLOTH_SE) or velocity Verlet (CLOTH_VV; CLOTH_VV_BEGIN: the
+    acceleration of the current state, the integrator's begin) for a springs [+ one hinge energy]
+    model from its plan (I, F; engine.integrators.explicit.cloth_plan); w is the plan's work array
+    of 4n vec3 (w[3n:] the Verlet acceleration, carried between steps). Loops: (E3) one per-vertex
+    kick-drift (parallel), then one parallel loop over the blocks (:func:`_cloth_block`); (E2) with
+    ``fixup`` (the plan has boundary vertices) a serial copy of the boundary vertices' new x."""
+    if ti.static(what == CLOTH_VV):
+        for i in range(x.shape[0]):
+            xi, vi, ai = vertex_update(VELOCITY_VERLET, KICK_DRIFT, x[i], v[i], w[3 * x.shape[0] + i], x[i], F[i],
+                                       x[i], dt, ti.math.vec3(0.0))
+            x[i] = xi
+            v[i] = vi
+    # Taichi 1.7 runs a CPU range-for as one contiguous chunk of ceil(N / threads), but at least 512,
+    # iterations per thread: a loop over a few blocks would run on one thread. So the loop runs
+    # over BLOCK_SLOTS iterations per block and the first of each does the block: thread t gets
+    # the blocks [t k, (t + 1) k) when there are k blocks per thread.
+    for it in range(I[H_NB] * BLOCK_SLOTS):
+        if it % BLOCK_SLOTS == 0:
+            _cloth_block(it // BLOCK_SLOTS, x, v, w, I, F, dt, what, with_hinges)
+    if ti.static(what == CLOTH_SE and fixup):
+        ti.loop_config(serialize=True)
+        for q in range(I[H_NBND]):
+            j = I[I[H_BND] + q]
+            x[j] = w[2 * I[H_N] + j]
+
+
+SPIN_LIMIT = 1 << 27  # barrier polls (~3-10 s) before cloth_steps gives up and reports it
+
+
+@ti.func
+def _barrier(sync: ti.template(), target):
+    """Count this thread's arrival in sync[0] and wait until target arrivals have been counted (or
+    sync[1], the give-up flag, is set; it is set here after SPIN_LIMIT polls). Integer atomics
+    only; Taichi's atomics are sequentially consistent, so every store before the barrier is seen
+    after it."""
+    ti.atomic_add(sync[0], 1)
+    k = 0
+    while ti.atomic_or(sync[0], 0) < target and sync[1] == 0 and k < SPIN_LIMIT:
+        k += 1
+    if k >= SPIN_LIMIT:
+        sync[1] = 1
+
+
+@ti.kernel
+def cloth_steps(x: vec3_array, v: vec3_array, dt: float, n_steps: ti.i32, w: vec3_array, I: int_array,
+                F: scalar_array, sync: int_array, what: ti.template(), with_hinges: ti.template()) -> ti.i32:
+    """``n_steps`` steps of :func:`cloth_step` (what = CLOTH_SE or CLOTH_VV) in ONE launch, the
+    blocks staying on their threads for all the steps: thread t runs block t (one block per thread,
+    see cloth_step's loop) and the threads meet at a spin barrier (integer atomics on sync) where
+    one step's loop would end: after the Verlet kick-drift, after the forces and update, after
+    the boundary copy. A parallel loop costs a wake-up of the thread pool, 20-60 us; a barrier a
+    few cache-line transfers. Needs every block on its own running thread (the planner uses it
+    with at most one block per thread); returns 0, or 1 when the threads did not meet within
+    SPIN_LIMIT polls (the state is then part-way through a step)."""
+    sync[0] = 0
+    sync[1] = 0
+    for it in range(I[H_NB] * BLOCK_SLOTS):
+        if it % BLOCK_SLOTS == 0:
+            b = it // BLOCK_SLOTS
+            nb = I[H_NB]
+            n = I[H_N]
+            lo = I[I[H_VB] + b]
+            hi = I[I[H_VB] + b + 1]
+            arrivals = 0
+            for s in range(n_steps):
+                if ti.static(what == CLOTH_VV):
+                    for i in range(lo, hi):
+                        xi, vi, ai = vertex_update(VELOCITY_VERLET, KICK_DRIFT, x[i], v[i], w[3 * n + i], x[i], F[i],
+                                                   x[i], dt, ti.math.vec3(0.0))
+                        x[i] = xi
+                        v[i] = vi
+                    arrivals += nb
+                    _barrier(sync, arrivals)
+                _cloth_block(b, x, v, w, I, F, dt, what, with_hinges)
+                arrivals += nb
+                _barrier(sync, arrivals)
+                if ti.static(what == CLOTH_SE):
+                    for q in range(I[I[H_BOFF] + b], I[I[H_BOFF] + b + 1]):
+                        j = I[I[H_BND] + q]
+                        x[j] = w[2 * n + j]
+                    arrivals += nb
+                    _barrier(sync, arrivals)
+                if sync[1] != 0:
+                    break
+    return sync[1]
 
 
 @ti.func
