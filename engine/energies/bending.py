@@ -156,10 +156,13 @@ def _skew(a):
 
 @ti.func
 def _theta(e, a0, a1):
-    # (A1) theta = atan2(e_hat . (N0 x N1), N0 . N1), N0 = e x a0, N1 = a1 x e
+    # (A1) theta = atan2(e_hat . (N0 x N1), N0 . N1), N0 = e x a0, N1 = a1 x e, evaluated as
+    # atan2(-|e| (N0 . a1), N0 . N1): N0 x N1 = (e x a0) x (a1 x e) = -((e x a0) . a1) e, so
+    # e_hat . (N0 x N1) = -|e| (N0 . a1) (one dot product instead of a cross product, a dot and a
+    # division; the rest of a force or Hessian kernel shares N0 and |e| with the gradient)
     N0 = e.cross(a0)
     N1 = a1.cross(e)
-    return ti.atan2(N0.cross(N1).dot(e) / e.norm(), N0.dot(N1))
+    return ti.atan2(-e.norm() * N0.dot(a1), N0.dot(N1))
 
 
 @ti.func
