@@ -174,7 +174,7 @@ def modal_reference_refused(ctx, method: str, stage: int) -> list | None:
         return None
     return [Experiment("backward Euler's modal prediction can be computed for this rod", MODAL_MAX_NODES, n, 0, "<=",
                        "nodes", id=f"modal-reference-stage{stage}",
-                       reason=f"the prediction holds all {n}^2 mode shapes ({8 * n * n / 2 ** 30:.0f} GiB); "
+                       reason=f"the prediction holds all {n}^2 mode shapes ({8 * n * n / 2 ** 30:.2g} GiB); "
                               f"use --nodes <= {MODAL_MAX_NODES} with --integrator backward-euler")]
 
 # ------------------------------------------------------------------ scenes and runs
