@@ -335,3 +335,22 @@ def test_fused_spring_kernel_blowup_at_its_step(method, over):
     text = assert_recorded_up_to(rec, expected, 7)
     assert text == str(info.value)
     assert info.value.kinetic.size == expected + 1
+
+
+def test_fused_spring_kernel_without_a_bound_stops_where_the_energy_overflows():
+    """No energy bound: a run over the stability limit still stops at the first step whose total
+    energy is not finite (here +inf: the velocities overflow), not after all its steps."""
+    n = 12
+    X = np.stack([np.zeros(n), np.zeros(n), -np.linspace(0, 1, n)], axis=1)
+    edges = np.stack([np.arange(n - 1), np.arange(1, n)], axis=1)
+    model = Model.from_springs(X, edges, k=1000.0, mass=1.0 / n, pinned=[0])
+    v0 = 0.01 * np.random.default_rng(2).standard_normal(X.shape)
+    v0[0] = 0.0
+    dt = 1.5 * stable_dt_estimate(model, method="power")
+    with pytest.raises(BlowUpError) as info:
+        run_fused(model, model.make_state(X, v0), dt, 200000, "symplectic-euler")
+    exc = info.value
+    assert not np.isfinite(exc.energy)
+    assert exc.step < 200000 - 1
+    finite = exc.kinetic[:-1] + exc.potential[:-1]
+    assert np.all(np.isfinite(finite)) and finite[-1] > 1e200   # every step before it had a finite energy

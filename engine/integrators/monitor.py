@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from engine.errors import BlowUpError
 
 def exceeded(E: float, bound: float = math.inf) -> bool:
@@ -57,8 +59,13 @@ class Monitor:
 
     @property
     def bound(self) -> float:
-        """The bound as a number for kernels (inf when there is none)."""
-        return math.inf if self.energy_bound is None else self.energy_bound
+        """The bound as a number for kernels: the largest finite number of the runtime's precision
+        when there is none (or a larger one), so that a kernel's ``not (E <= bound)`` also stops
+        at an energy that overflowed to +inf (a comparison with inf lets +inf through, and
+        Taichi folds an explicit nan test away)."""
+        from engine.fields import float_dtype
+        largest = float(np.finfo(float_dtype()).max)
+        return largest if self.energy_bound is None else min(self.energy_bound, largest)
 
     def dt_stable(self) -> float | None:
         d = self._dt_stable
