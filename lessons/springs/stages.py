@@ -698,8 +698,18 @@ def _chain_model(Ls: np.ndarray, k: np.ndarray, rho: float):
 UNDAMPED = ("symplectic-euler", "velocity-verlet")
 
 
+MODAL_MAX_NODES = 5001  # backward Euler's modal reference holds all n^2 mode shapes of a chain (200 MB here)
+
+
 def stage_sound(ctx):
     cfg = ctx.cfg
+    if ctx.integrator_name("symplectic-euler") == "backward-euler" and cfg.wave_segments + 1 > MODAL_MAX_NODES:
+        n = cfg.wave_segments + 1  # the uniform chain, the longest
+        return [Experiment("backward Euler's modal prediction can be computed for these chains", MODAL_MAX_NODES, n, 0,
+                           "<=", "nodes", id="modal-reference-stage4",
+                           reason=f"the prediction holds all n^2 mode shapes of chains of up to {n} nodes "
+                                  f"({8 * n * n / 2 ** 30:.2g} GiB); use --wave-segments <= {MODAL_MAX_NODES - 1} "
+                                  "with --integrator backward-euler")]
     announce(ctx, stage4_seconds(cfg))
     rho = cfg.rho
     c = math.sqrt(cfg.E / rho)
