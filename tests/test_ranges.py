@@ -333,3 +333,16 @@ def test_rod_quiet_runs_in_launches_step_exactly_as_one_launch(monkeypatch):
     S._quiet_run(ctx, "run", rod, chunked, dt, 1000, "symplectic-euler", None)
     assert np.array_equal(one.positions(), chunked.positions())
     assert np.array_equal(one.velocity(), chunked.velocity())
+
+
+@pytest.mark.parametrize("lesson_id,stage,kw", [("rod-waves", 2, dict(nodes=6001)), ("rod-waves", 4, dict(nodes=6001)),
+                                                ("springs", 4, dict(wave_segments=6000))])
+def test_backward_eulers_modal_reference_too_large_is_a_failure_with_its_reason(lesson_id, stage, kw):
+    """Under backward Euler the scene claims compare with the scheme's modal reference, which holds
+    all n^2 mode shapes: past 5001 nodes the stage says so at once instead of running out of memory."""
+    from lessons._framework import Stepping
+    lesson = LESSONS[lesson_id]
+    ctx = StageContext(lesson, lesson.config(**kw), NullRecorder(), stage, stream=io.StringIO(), quiet=True,
+                       stepping=Stepping(integrator="backward-euler"))
+    (e,) = lesson.stages[stage - 1].run(ctx)
+    assert not e.passed and "mode shapes" in e.reason and "--integrator backward-euler" in e.reason
