@@ -37,6 +37,7 @@ def available(name: str) -> str | None:
     mod = _MODULE.get(name)
     if mod is None:
         return None
+    _quiet_openmp()
     try:
         __import__(mod)
     except Exception as exc:  # ImportError, or mkl_rt not found
@@ -48,6 +49,12 @@ def available(name: str) -> str | None:
         except Exception as exc:
             return f"MKL PARDISO cannot be loaded ({exc})"
     return None
+
+
+def _quiet_openmp() -> None:
+    """The engine's setting (engine.linalg): MKL's OpenMP threads sleep when a solve ends rather
+    than spin, so both drive PARDISO under the same conditions."""
+    os.environ.setdefault("KMP_BLOCKTIME", "0")
 
 
 def _threads() -> int:
