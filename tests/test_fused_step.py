@@ -84,6 +84,21 @@ def test_many_steps_in_one_launch_give_the_same_bits(method):
     assert cloth_blocks(model.n) == min(2, runtime.current().threads)
 
 
+def test_many_steps_kernel_gives_up_when_the_blocks_cannot_meet():
+    """cloth_steps needs every block on its own running thread. With one block more than the runtime
+    has threads, one thread holds two blocks and the step barrier can never fill: the kernel gives
+    up after its poll limit and says so (the planner never launches it like that)."""
+    from engine import runtime
+    from engine.fields import int_ndarray, vec3_ndarray
+    model = cloth(24, B=1e-3).model
+    I, F, _ = cloth_plan(model, runtime.current().threads + 1)
+    spin_limit = 20000
+    steps = K.BoundKernel(K.cloth_steps, (vec3_ndarray(4 * model.n), I, F, int_ndarray(np.zeros(2)), spin_limit),
+                          (K.CLOTH_SE, True))
+    st = model.make_state(None, None)
+    assert steps(st.x, st.v, 1e-5, 3) == 1
+
+
 def test_direct_launch_is_taichis_launch(monkeypatch):
     """The bound launch sets the same arguments as Taichi's own kernel call: the same bits."""
     model = cloth(10, B=1e-3).model

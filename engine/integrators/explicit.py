@@ -129,14 +129,17 @@ def cloth_plan(model: Model, n_blocks: int):
     def csr(mask):
         return np.concatenate([[0], np.cumsum(np.bincount(owner[mask], minlength=n))])
 
+    in_count = np.bincount(owner[inc], minlength=n)
+    in_v = np.flatnonzero(in_count)   # the vertices with springs from below their block, ascending
     bnd_list = np.flatnonzero(bnd)
-    sections = [vb, csr(inc), other[inc], csr(up), other[up], bnd.astype(np.int64), bnd_list, None,
-                h_off, hv, np.searchsorted(bnd_list, vb)]
+    sections = [vb, np.concatenate([[0], np.cumsum(in_count[in_v])]), other[inc], csr(up), other[up],
+                bnd.astype(np.int64), bnd_list, None, h_off, hv, np.searchsorted(bnd_list, vb), in_v,
+                np.searchsorted(in_v, vb)]
     header = np.zeros(K.HEADER, dtype=np.int64)
     header[K.H_NB], header[K.H_N] = nb, n
     parts, pos = [header], K.HEADER
     slots = (K.H_VB, K.H_IN_OFF, K.H_IN_J, K.H_UP_OFF, K.H_UP_C, K.H_BFLAG, K.H_BND, K.H_NBND, K.H_HOFF, K.H_HV,
-             K.H_BOFF)
+             K.H_BOFF, K.H_IN_V, K.H_IN_VOFF)
     for slot, arr in zip(slots, sections):
         if arr is None:
             header[slot] = int(bnd.sum())
@@ -183,10 +186,11 @@ def cloth_stepper(model: Model, n_blocks: int):
     launch = {what: K.BoundKernel(K.cloth_step, (w, I, F), (what, with_h, n_boundary > 0))
               for what in (K.CLOTH_SE, K.CLOTH_VV, K.CLOTH_VV_BEGIN)}
     codes = {"symplectic-euler": K.CLOTH_SE, "velocity-verlet": K.CLOTH_VV, "velocity-verlet-begin": K.CLOTH_VV_BEGIN}
-    # many steps per launch only with a thread for every block (cloth_steps' barrier needs them all running)
+    # many steps per launch only with a thread for every block and a core for every thread (the
+    # barrier of cloth_steps spins: it needs all blocks running at once)
     nb = int(I.to_numpy()[K.H_NB])
-    multi = {what: K.BoundKernel(K.cloth_steps, (w, I, F, sync), (what, with_h))
-             for what in (K.CLOTH_SE, K.CLOTH_VV)} if nb <= _threads() else {}
+    multi = {what: K.BoundKernel(K.cloth_steps, (w, I, F, sync, K.SPIN_LIMIT), (what, with_h))
+             for what in (K.CLOTH_SE, K.CLOTH_VV)} if nb <= _threads() <= _cores() else {}
 
     def step(state, dt, method="symplectic-euler", n_steps=1):
         if state.x.shape[0] != n:
@@ -198,6 +202,7 @@ def cloth_stepper(model: Model, n_blocks: int):
             while left > 0:
                 k = min(left, MULTI_STEP_CHUNK)
                 if multi[what](state.x, state.v, dt, k):
+                    zero_vec3(w)  # the sums a block left in it (a launch starts from zero sums)
                     raise RuntimeError(f"the {nb} threads of the many-steps cloth kernel did not meet at a step's end "
                                        f"within {K.SPIN_LIMIT} polls (the state is part-way through a step); "
                                        f"is every CPU thread of the runtime really running? ELASTIC_THREADS=1 avoids it")
@@ -215,6 +220,14 @@ def _threads() -> int:
     from engine import runtime
     info = runtime.current()
     return 1 if info is None else int(info.threads)
+
+
+def _cores() -> int:
+    import os
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
 
 
 def one_launch_plan(model: Model):

@@ -222,8 +222,8 @@ class BoundKernel:
 # Layout of the plan's int array ``I`` (built by engine.integrators.explicit.cloth_plan): a header
 # of section starts, then the sections. The float array ``F`` holds the per-entry coefficients.
 (H_NB, H_N, H_VB, H_IN_OFF, H_IN_J, H_UP_OFF, H_UP_C, H_BFLAG, H_BND, H_NBND, H_HOFF, H_HV, H_F_IN, H_F_UP,
- H_F_H, H_F_G, H_MODE, H_BOFF) = range(18)
-HEADER = 18
+ H_F_H, H_F_G, H_MODE, H_BOFF, H_IN_V, H_IN_VOFF) = range(20)
+HEADER = 20
 BLOCK_SLOTS = 512  # loop iterations per block (see cloth_step)
 # what one cloth_step launch does
 CLOTH_SE, CLOTH_VV, CLOTH_VV_BEGIN = 0, 1, 2
@@ -258,10 +258,12 @@ def _cloth_block(b, x: ti.template(), v: ti.template(), w: ti.template(), I: ti.
                  what: ti.template(), with_hinges: ti.template()):
     """Forces and update of the vertices [lo, hi) of block b. Each vertex's forces are summed in the
     order of the generic path's gathers (springs by ascending neighbour index, then hinges by
-    ascending hinge index), so the result is bitwise the generic path's for any partition:
+    ascending hinge index), so the result is bitwise the generic path's for any partition. The
+    vertex's spring sum is w[i], its hinge sum w[n + i]; both are 0 when a launch starts (the sweep
+    zeroes them after use; a new work array is zero):
 
-    1. per vertex: w[i] = the springs to neighbours below the block (ascending), computed here;
-       w[n + i] = 0 (its hinge sum);
+    1. per vertex with springs to neighbours below the block (listed): w[i] = their sum (ascending),
+       computed here;
     2. per hinge touching the block (ascending): its four forces, added to the block's slots;
     3. per vertex, ascending: the springs to neighbours above i, each computed once: subtracted
        from i's sum and, if the neighbour is in the block, added to its w (it comes later, and
@@ -274,17 +276,17 @@ def _cloth_block(b, x: ti.template(), v: ti.template(), w: ti.template(), I: ti.
     mode = I[H_MODE]
     lo = I[I[H_VB] + b]
     hi = I[I[H_VB] + b + 1]
+    in_v = I[H_IN_V]
     in_off = I[H_IN_OFF]
     in_j = I[H_IN_J]
     f_in = I[H_F_IN]
-    for i in range(lo, hi):
+    for p in range(I[I[H_IN_VOFF] + b], I[I[H_IN_VOFF] + b + 1]):
+        i = I[in_v + p]
         acc = ti.math.vec3(0.0)
         xi = x[i]
-        for q in range(I[in_off + i], I[in_off + i + 1]):
+        for q in range(I[in_off + p], I[in_off + p + 1]):
             acc -= _spring_term(xi - x[I[in_j + q]], F[f_in + 2 * q], F[f_in + 2 * q + 1])
         w[i] = acc
-        if ti.static(with_hinges):
-            w[n + i] = ti.math.vec3(0.0)
     if ti.static(with_hinges):
         hv = I[H_HV]
         f_h = I[H_F_H]
@@ -316,8 +318,10 @@ def _cloth_block(b, x: ti.template(), v: ti.template(), w: ti.template(), I: ti.
                 w[c] = w[c] + t
         f = ti.math.vec3(0.0)
         f += acc
+        w[i] = ti.math.vec3(0.0)
         if ti.static(with_hinges):
             f += w[n + i]
+            w[n + i] = ti.math.vec3(0.0)
         if ti.static(what == CLOTH_SE):
             xn, vn, an = vertex_update(SYMPLECTIC_EULER, STEP, xi, v[i], xi, f, F[i], g, dt, ti.math.vec3(0.0))
             v[i] = vn
@@ -361,26 +365,27 @@ def cloth_step(x: vec3_array, v: vec3_array, dt: float, w: vec3_array, I: int_ar
             x[j] = w[2 * I[H_N] + j]
 
 
-SPIN_LIMIT = 1 << 27  # barrier polls (~3-10 s) before cloth_steps gives up and reports it
+SPIN_LIMIT = 1 << 27  # barrier polls (~3-10 s) before cloth_steps gives up and reports it (its default)
 
 
 @ti.func
-def _barrier(sync: ti.template(), target):
+def _barrier(sync: ti.template(), target, spin_limit):
     """Count this thread's arrival in sync[0] and wait until target arrivals have been counted (or
-    sync[1], the give-up flag, is set; it is set here after SPIN_LIMIT polls). Integer atomics
+    sync[1], the give-up flag, is set; it is set here after spin_limit polls). Integer atomics
     only; Taichi's atomics are sequentially consistent, so every store before the barrier is seen
     after it."""
     ti.atomic_add(sync[0], 1)
     k = 0
-    while ti.atomic_or(sync[0], 0) < target and sync[1] == 0 and k < SPIN_LIMIT:
+    while ti.atomic_or(sync[0], 0) < target and sync[1] == 0 and k < spin_limit:
         k += 1
-    if k >= SPIN_LIMIT:
+    if k >= spin_limit:
         sync[1] = 1
 
 
 @ti.kernel
 def cloth_steps(x: vec3_array, v: vec3_array, dt: float, n_steps: ti.i32, w: vec3_array, I: int_array,
-                F: scalar_array, sync: int_array, what: ti.template(), with_hinges: ti.template()) -> ti.i32:
+                F: scalar_array, sync: int_array, spin_limit: ti.i32, what: ti.template(),
+                with_hinges: ti.template()) -> ti.i32:
     """``n_steps`` steps of :func:`cloth_step` (what = CLOTH_SE or CLOTH_VV) in ONE launch, the
     blocks staying on their threads for all the steps: thread t runs block t (one block per thread,
     see cloth_step's loop) and the threads meet at a spin barrier (integer atomics on sync) where
@@ -388,7 +393,7 @@ def cloth_steps(x: vec3_array, v: vec3_array, dt: float, n_steps: ti.i32, w: vec
     the boundary copy. A parallel loop costs a wake-up of the thread pool, 20-60 us; a barrier a
     few cache-line transfers. Needs every block on its own running thread (the planner uses it
     with at most one block per thread); returns 0, or 1 when the threads did not meet within
-    SPIN_LIMIT polls (the state is then part-way through a step)."""
+    ``spin_limit`` polls (the state is then part-way through a step)."""
     sync[0] = 0
     sync[1] = 0
     for it in range(I[H_NB] * BLOCK_SLOTS):
@@ -407,16 +412,16 @@ def cloth_steps(x: vec3_array, v: vec3_array, dt: float, n_steps: ti.i32, w: vec
                         x[i] = xi
                         v[i] = vi
                     arrivals += nb
-                    _barrier(sync, arrivals)
+                    _barrier(sync, arrivals, spin_limit)
                 _cloth_block(b, x, v, w, I, F, dt, what, with_hinges)
                 arrivals += nb
-                _barrier(sync, arrivals)
+                _barrier(sync, arrivals, spin_limit)
                 if ti.static(what == CLOTH_SE):
                     for q in range(I[I[H_BOFF] + b], I[I[H_BOFF] + b + 1]):
                         j = I[I[H_BND] + q]
                         x[j] = w[2 * n + j]
                     arrivals += nb
-                    _barrier(sync, arrivals)
+                    _barrier(sync, arrivals, spin_limit)
                 if sync[1] != 0:
                     break
     return sync[1]
