@@ -158,3 +158,31 @@ def test_models_without_springs_first_take_the_generic_path():
     xg, vg, _ = run(bending_only, v0, 1e-4, 20, "symplectic-euler", False)  # bitwise the generic path's
     assert np.array_equal(x, xg) and np.array_equal(v, vg)
     assert np.abs(x - bending_only.X).max() > 0
+
+
+def test_the_hinge_angle_is_atan2_to_an_ulp():
+    """Both paths take the hinge angle from engine.energies.bending._atan2: a polynomial for
+    |y| < x/8, the C library's atan2 elsewhere. Against numpy's arctan2 (the C library's) it is
+    within 1 ulp everywhere, inside the polynomial's range and out of it, and exact at zero."""
+    import taichi as ti
+    from engine.energies.bending import _atan2
+    from engine.fields import float_dtype, scalar_ndarray
+
+    @ti.kernel
+    def angles(y: ti.types.ndarray(ndim=1), x: ti.types.ndarray(ndim=1), out: ti.types.ndarray(ndim=1)):
+        for i in range(y.shape[0]):
+            out[i] = _atan2(y[i], x[i])
+
+    fdt = float_dtype()
+    rng = np.random.default_rng(17)
+    t = np.concatenate([np.linspace(-0.2, 0.2, 4001), rng.uniform(-50, 50, 2000), [0.0, 1e-300, -1e-300]])
+    x = np.concatenate([rng.uniform(0.1, 10.0, len(t) - 3), [1.0, 1.0, 1.0]])
+    x[::7] *= -1.0  # the other half-plane: the library's branch
+    y = (t * x).astype(fdt)
+    x = x.astype(fdt)
+    out = scalar_ndarray(np.zeros(len(x)))
+    angles(scalar_ndarray(y), scalar_ndarray(x), out)
+    got, ref = out.to_numpy(), np.arctan2(y, x)
+    ulp = np.spacing(np.abs(ref).astype(fdt))
+    assert np.all(np.abs(got - ref) <= ulp) and got[-3] == 0.0
+    assert np.mean(np.abs(y) < np.abs(x) / 8) > 0.3  # the polynomial's branch is exercised

@@ -154,6 +154,31 @@ def _skew(a):
     return ti.Matrix([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
 
 
+# atan(t) = t - t z P(z), z = t^2, for |t| < 1/8: P(z) = (t - atan t)/(t z) interpolated at 6 Chebyshev
+# nodes in z in 80-bit arithmetic, rounded to f64. Against an 80-bit atan the result is within
+# 0.57 ulp in f64 (the C library's atan2: 0.52) and 0.51 ulp in f32.
+_ATAN_P = (0.3333333333333331, -0.19999999999808935, 0.14285714134412197, -0.11111068939432774,
+           0.09085639204325464, -0.07388585930069287)
+
+
+@ti.func
+def _atan2(y, x):
+    """atan2(y, x), inline for |y| < x / 8 (|angle| < 7.1 deg: most hinges of a cloth or a shell),
+    where the polynomial is quicker than the C library's atan2 call; that call otherwise."""
+    r = 0.0
+    if ti.abs(y) < 0.125 * x:
+        t = y / x
+        z = t * t
+        c = ti.static(_ATAN_P)
+        p = c[4] + z * c[5]
+        for j in ti.static(range(3, -1, -1)):
+            p = c[j] + z * p
+        r = t - t * (z * p)
+    else:
+        r = ti.atan2(y, x)
+    return r
+
+
 @ti.func
 def _theta(e, a0, a1):
     # (A1) theta = atan2(e_hat . (N0 x N1), N0 . N1), N0 = e x a0, N1 = a1 x e, evaluated as
@@ -162,7 +187,7 @@ def _theta(e, a0, a1):
     # division; the rest of a force or Hessian kernel shares N0 and |e| with the gradient)
     N0 = e.cross(a0)
     N1 = a1.cross(e)
-    return ti.atan2(-e.norm() * N0.dot(a1), N0.dot(N1))
+    return _atan2(-e.norm() * N0.dot(a1), N0.dot(N1))
 
 
 @ti.func

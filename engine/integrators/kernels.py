@@ -254,6 +254,22 @@ def _hinge_forces(x: ti.template(), v0, v1, w0, w1, k, theta_bar, mode):
 
 
 @ti.func
+def _hinge_entry(x: ti.template(), I: ti.template(), F: ti.template(), hv, f_h, q, mode):
+    """The four forces of the block's hinge entry q (vertices I[hv + 4q ...], k and theta_bar in F)."""
+    return _hinge_forces(x, I[hv + 4 * q], I[hv + 4 * q + 1], I[hv + 4 * q + 2], I[hv + 4 * q + 3],
+                         F[f_h + 2 * q], F[f_h + 2 * q + 1], mode)
+
+
+@ti.func
+def _add_slots(w: ti.template(), I: ti.template(), hv, q, n, lo, hi, f: ti.template()):
+    """Add hinge entry q's forces to the hinge sums w[n + v] of its slots v in the block [lo, hi)."""
+    for a in ti.static(range(4)):
+        s = I[hv + 4 * q + a]
+        if lo <= s and s < hi:
+            w[n + s] = w[n + s] + f[a]
+
+
+@ti.func
 def _cloth_block(b, x: ti.template(), v: ti.template(), w: ti.template(), I: ti.template(), F: ti.template(), dt,
                  what: ti.template(), with_hinges: ti.template()):
     """Forces and update of the vertices [lo, hi) of block b. Each vertex's forces are summed in the
@@ -290,20 +306,18 @@ def _cloth_block(b, x: ti.template(), v: ti.template(), w: ti.template(), I: ti.
     if ti.static(with_hinges):
         hv = I[H_HV]
         f_h = I[H_F_H]
-        for q in range(I[I[H_HOFF] + b], I[I[H_HOFF] + b + 1]):
-            s0 = I[hv + 4 * q]
-            s1 = I[hv + 4 * q + 1]
-            s2 = I[hv + 4 * q + 2]
-            s3 = I[hv + 4 * q + 3]
-            f0, f1, f2, f3 = _hinge_forces(x, s0, s1, s2, s3, F[f_h + 2 * q], F[f_h + 2 * q + 1], mode)
-            if lo <= s0 and s0 < hi:
-                w[n + s0] = w[n + s0] + f0
-            if lo <= s1 and s1 < hi:
-                w[n + s1] = w[n + s1] + f1
-            if lo <= s2 and s2 < hi:
-                w[n + s2] = w[n + s2] + f2
-            if lo <= s3 and s3 < hi:
-                w[n + s3] = w[n + s3] + f3
+        q0 = I[I[H_HOFF] + b]
+        q1 = I[I[H_HOFF] + b + 1]
+        # two hinges per iteration: their long dependency chains (geometry, angle, force) overlap;
+        # the forces are still added in ascending hinge order
+        for p in range((q1 - q0) // 2):
+            qa = q0 + 2 * p
+            fa = _hinge_entry(x, I, F, hv, f_h, qa, mode)
+            fb = _hinge_entry(x, I, F, hv, f_h, qa + 1, mode)
+            _add_slots(w, I, hv, qa, n, lo, hi, fa)
+            _add_slots(w, I, hv, qa + 1, n, lo, hi, fb)
+        if (q1 - q0) % 2 == 1:
+            _add_slots(w, I, hv, q1 - 1, n, lo, hi, _hinge_entry(x, I, F, hv, f_h, q1 - 1, mode))
     up_off = I[H_UP_OFF]
     up_c = I[H_UP_C]
     f_up = I[H_F_UP]
