@@ -84,19 +84,25 @@ def test_many_steps_in_one_launch_give_the_same_bits(method):
     assert cloth_blocks(model.n) == min(2, runtime.current().threads)
 
 
-def test_many_steps_kernel_gives_up_when_the_blocks_cannot_meet():
-    """cloth_steps needs every block on its own running thread. With one block more than the runtime
-    has threads, one thread holds two blocks and the step barrier can never fill: the kernel gives
-    up after its poll limit and says so (the planner never launches it like that)."""
+def test_many_steps_kernel_with_more_blocks_than_threads():
+    """cloth_steps' tasks are taken by whichever thread is free: with more blocks than the runtime
+    has threads (some threads do several blocks' tasks) it still gives the generic path's state;
+    with no waiting allowed (poll limit 0) it gives up at once and says so."""
     from engine import runtime
     from engine.fields import int_ndarray, vec3_ndarray
     model = cloth(24, B=1e-3).model
-    I, F, _ = cloth_plan(model, runtime.current().threads + 1)
-    spin_limit = 20000
-    steps = K.BoundKernel(K.cloth_steps, (vec3_ndarray(4 * model.n), I, F, int_ndarray(np.zeros(2)), spin_limit),
-                          (K.CLOTH_SE, True))
-    st = model.make_state(None, None)
-    assert steps(st.x, st.v, 1e-5, 3) == 1
+    v0 = start(model, seed=19)
+    dt = 0.5 * stable_dt_estimate(model)
+    I, F, _ = cloth_plan(model, runtime.current().threads + 3)
+    w, sync = vec3_ndarray(4 * model.n), int_ndarray(np.zeros(3))
+    steps = K.BoundKernel(K.cloth_steps, (w, I, F, sync, K.SPIN_LIMIT), (K.CLOTH_SE, True))
+    st = model.make_state(None, v0)
+    assert steps(st.x, st.v, dt, 20) == 0
+    x_ref, v_ref, _ = run(model, v0, dt, 20, "symplectic-euler", False)
+    s = st.numpy()
+    assert np.array_equal(s.x, x_ref) and np.array_equal(s.v, v_ref)
+    impatient = K.BoundKernel(K.cloth_steps, (w, I, F, sync, 0), (K.CLOTH_SE, True))
+    assert impatient(st.x, st.v, dt, 3) == 1
 
 
 def test_direct_launch_is_taichis_launch(monkeypatch):

@@ -181,13 +181,13 @@ def cloth_stepper(model: Model, n_blocks: int):
         w = d["cloth_w"] = vec3_ndarray(4 * n)  # spring sums, hinge sums, boundary x, Verlet acceleration
     sync = d.get("cloth_sync")
     if sync is None:
-        sync = d["cloth_sync"] = int_ndarray(np.zeros(2))
+        sync = d["cloth_sync"] = int_ndarray(np.zeros(3))
     with_h = sig == ("springs", "hinges")
     launch = {what: K.BoundKernel(K.cloth_step, (w, I, F), (what, with_h, n_boundary > 0))
               for what in (K.CLOTH_SE, K.CLOTH_VV, K.CLOTH_VV_BEGIN)}
     codes = {"symplectic-euler": K.CLOTH_SE, "velocity-verlet": K.CLOTH_VV, "velocity-verlet-begin": K.CLOTH_VV_BEGIN}
-    # many steps per launch only with a thread for every block and a core for every thread (the
-    # barrier of cloth_steps spins: it needs all blocks running at once)
+    # many steps per launch with a thread per block and a core per thread (cloth_steps' threads
+    # spin while they wait for each other: on a shared core that would cost a time slice)
     nb = int(I.to_numpy()[K.H_NB])
     multi = {what: K.BoundKernel(K.cloth_steps, (w, I, F, sync, K.SPIN_LIMIT), (what, with_h))
              for what in (K.CLOTH_SE, K.CLOTH_VV)} if nb <= _threads() <= _cores() else {}
@@ -203,8 +203,8 @@ def cloth_stepper(model: Model, n_blocks: int):
                 k = min(left, MULTI_STEP_CHUNK)
                 if multi[what](state.x, state.v, dt, k):
                     zero_vec3(w)  # the sums a block left in it (a launch starts from zero sums)
-                    raise RuntimeError(f"the {nb} threads of the many-steps cloth kernel did not meet at a step's end "
-                                       f"within {K.SPIN_LIMIT} polls (the state is part-way through a step); "
+                    raise RuntimeError(f"the many-steps cloth kernel gave up: a thread waited more than {K.SPIN_LIMIT} "
+                                       f"polls for the tasks before its own (the state is part-way through a step); "
                                        f"is every CPU thread of the runtime really running? ELASTIC_THREADS=1 avoids it")
                 left -= k
             return

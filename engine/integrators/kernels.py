@@ -379,66 +379,69 @@ def cloth_step(x: vec3_array, v: vec3_array, dt: float, w: vec3_array, I: int_ar
             x[j] = w[2 * I[H_N] + j]
 
 
-SPIN_LIMIT = 1 << 27  # barrier polls (~3-10 s) before cloth_steps gives up and reports it (its default)
+SPIN_LIMIT = 1 << 27  # polls (~3-10 s) of one wait before cloth_steps gives up and reports it (its default)
 
 
 @ti.func
-def _barrier(sync: ti.template(), target, spin_limit):
-    """Count this thread's arrival in sync[0] and wait until target arrivals have been counted (or
-    sync[1], the give-up flag, is set; it is set here after spin_limit polls). Integer atomics
-    only; Taichi's atomics are sequentially consistent, so every store before the barrier is seen
-    after it."""
-    ti.atomic_add(sync[0], 1)
-    k = 0
-    while ti.atomic_or(sync[0], 0) < target and sync[1] == 0 and k < spin_limit:
-        k += 1
-    if k >= spin_limit:
-        sync[1] = 1
+def _cloth_phase(p, blk, x: ti.template(), v: ti.template(), w: ti.template(), I: ti.template(),
+                 F: ti.template(), dt, what: ti.template(), with_hinges: ti.template()):
+    """Phase p of cloth_steps for block blk. Phases per step: (E3) kick-drift, forces and update;
+    (E2) forces and update, boundary copy."""
+    n = I[H_N]
+    if ti.static(what == CLOTH_VV):
+        if p % 2 == 0:
+            for i in range(I[I[H_VB] + blk], I[I[H_VB] + blk + 1]):
+                xi, vi, ai = vertex_update(VELOCITY_VERLET, KICK_DRIFT, x[i], v[i], w[3 * n + i], x[i], F[i],
+                                           x[i], dt, ti.math.vec3(0.0))
+                x[i] = xi
+                v[i] = vi
+        else:
+            _cloth_block(blk, x, v, w, I, F, dt, what, with_hinges)
+    else:
+        if p % 2 == 0:
+            _cloth_block(blk, x, v, w, I, F, dt, what, with_hinges)
+        else:
+            for q in range(I[I[H_BOFF] + blk], I[I[H_BOFF] + blk + 1]):
+                j = I[I[H_BND] + q]
+                x[j] = w[2 * n + j]
 
 
 @ti.kernel
 def cloth_steps(x: vec3_array, v: vec3_array, dt: float, n_steps: ti.i32, w: vec3_array, I: int_array,
                 F: scalar_array, sync: int_array, spin_limit: ti.i32, what: ti.template(),
                 with_hinges: ti.template()) -> ti.i32:
-    """``n_steps`` steps of :func:`cloth_step` (what = CLOTH_SE or CLOTH_VV) in ONE launch, the
-    blocks staying on their threads for all the steps: thread t runs block t (one block per thread,
-    see cloth_step's loop) and the threads meet at a spin barrier (integer atomics on sync) where
-    one step's loop would end: after the Verlet kick-drift, after the forces and update, after
-    the boundary copy. A parallel loop costs a wake-up of the thread pool, 20-60 us; a barrier a
-    few cache-line transfers. Needs every block on its own running thread (the planner uses it
-    with at most one block per thread); returns 0, or 1 when the threads did not meet within
-    ``spin_limit`` polls (the state is then part-way through a step)."""
+    """``n_steps`` steps of :func:`cloth_step` (what = CLOTH_SE or CLOTH_VV) in ONE launch. A step is
+    two phases (see :func:`_cloth_phase`), each one task per block; the tasks are numbered in order
+    (phase p, block b: ticket p nb + b) and every thread of the launch takes the next ticket
+    (sync[0], an integer atomic), waits until the tasks of the phases before it are done (sync[1]
+    counts them) and does it. Each task runs once and after all of the previous phase, so the
+    state is the one of n_steps single-step launches (bitwise), whatever the threads do; a thread
+    that starts late finds the others have done its share, and one thread alone does everything
+    (nothing waits for a thread that is not running). A parallel loop costs a wake-up of the thread
+    pool, 20-60 us here; a phase a few cache-line transfers. Returns 0, or 1 when a wait for the
+    tasks before a ticket exceeded ``spin_limit`` polls (the state is then part-way through a step)."""
     sync[0] = 0
     sync[1] = 0
-    for it in range(I[H_NB] * BLOCK_SLOTS):
+    sync[2] = 0
+    for it in range(I[H_NB] * BLOCK_SLOTS):   # one worker per thread (see cloth_step's loop)
         if it % BLOCK_SLOTS == 0:
-            b = it // BLOCK_SLOTS
             nb = I[H_NB]
-            n = I[H_N]
-            lo = I[I[H_VB] + b]
-            hi = I[I[H_VB] + b + 1]
-            arrivals = 0
-            for s in range(n_steps):
-                if ti.static(what == CLOTH_VV):
-                    for i in range(lo, hi):
-                        xi, vi, ai = vertex_update(VELOCITY_VERLET, KICK_DRIFT, x[i], v[i], w[3 * n + i], x[i], F[i],
-                                                   x[i], dt, ti.math.vec3(0.0))
-                        x[i] = xi
-                        v[i] = vi
-                    arrivals += nb
-                    _barrier(sync, arrivals, spin_limit)
-                _cloth_block(b, x, v, w, I, F, dt, what, with_hinges)
-                arrivals += nb
-                _barrier(sync, arrivals, spin_limit)
-                if ti.static(what == CLOTH_SE):
-                    for q in range(I[I[H_BOFF] + b], I[I[H_BOFF] + b + 1]):
-                        j = I[I[H_BND] + q]
-                        x[j] = w[2 * n + j]
-                    arrivals += nb
-                    _barrier(sync, arrivals, spin_limit)
-                if sync[1] != 0:
+            last = 2 * n_steps * nb
+            while True:
+                t = ti.atomic_add(sync[0], 1)
+                if t >= last or sync[2] != 0:
                     break
-    return sync[1]
+                p = t // nb
+                k = 0
+                while ti.atomic_or(sync[1], 0) < p * nb and sync[2] == 0 and k < spin_limit:
+                    k += 1
+                if k >= spin_limit:
+                    sync[2] = 1
+                if sync[2] != 0:
+                    break
+                _cloth_phase(p, t % nb, x, v, w, I, F, dt, what, with_hinges)
+                ti.atomic_add(sync[1], 1)
+    return sync[2]
 
 
 @ti.func
