@@ -17,6 +17,7 @@ import pytest
 
 from engine.errors import BlowUpError, ParameterError
 from lessons import registry
+from lessons._budget import WORK_BUDGET_S
 from lessons._framework import StageContext, _field_type, validate_config
 from engine.recorder import NullRecorder
 
@@ -100,16 +101,16 @@ def check_plan(lesson_id: str, cfg) -> None:
     elif lesson_id == "springs":
         from lessons.springs import stages as S
         plan = S.stage2_plan(cfg)
-        assert plan["longest"] <= S.MAX_LAUNCH_STEPS and plan["seconds"] <= S.WORK_BUDGET_S
+        assert plan["longest"] <= S.MAX_LAUNCH_STEPS and plan["seconds"] <= WORK_BUDGET_S
         assert all(math.isfinite(dt) and dt > 0 for dt in plan["dt"].values())
-        assert S.stage4_seconds(cfg) <= S.WORK_BUDGET_S
+        assert S.stage4_seconds(cfg) <= WORK_BUDGET_S
     elif lesson_id == "area-springs":
         from lessons.area_springs import stages as S
-        assert all(S.stage_seconds(cfg, i) <= S.WORK_BUDGET_S for i in range(1, 6))
+        assert all(S.stage_seconds(cfg, i) <= WORK_BUDGET_S for i in range(1, 6))
     else:
         from lessons.explicit_vs_implicit import stages as S
         assert math.isfinite(S.limit_estimate(cfg.n, cfg.E, cfg.rho, cfg.B))
-        assert all(S.stage_seconds(cfg, i) <= S.WORK_BUDGET_S for i in (1, 2))
+        assert all(S.stage_seconds(cfg, i) <= WORK_BUDGET_S for i in (1, 2))
 
 
 # stages that take well under a second at the defaults, and the parameters whose edges they run at
@@ -247,7 +248,7 @@ def test_evi_unsettled_cloth_says_why():
     assert S._unsettled_reason(ctx, cl, w1, 1e-3, 10, 10.0, 0.5).startswith("numerical damping too weak")
     assert S._unsettled_reason(ctx, cl, w1, 1e-3, 10, 10.0, 1e-4) == ""  # settled: nothing to explain
     assert S._unsettled_reason(ctx, cl, w1, 10.0, 10**6, 10.0, 0.5) == ""  # theory says settled: no excuse
-    assert S.stage_seconds(LESSONS["explicit-vs-implicit"].config(n=40), 1) < S.WORK_BUDGET_S
+    assert S.stage_seconds(LESSONS["explicit-vs-implicit"].config(n=40), 1) < WORK_BUDGET_S
 
 
 # ------------------------------------------------------------------------- regressions: long and silent

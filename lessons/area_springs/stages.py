@@ -21,8 +21,9 @@ from engine.waves import (ModeProbe, cauchy_born_tensor, christoffel, max_speed,
                           relaxed_stiffness_2d, young_poisson)
 from engine.theory.schemes import backward_euler_damping_rate as be_damping_rate
 
-from engine.errors import ParameterError
 
+from .. import _budget
+from .._budget import refuse_over_budget
 from .._framework import Experiment
 from .._measure import damped_frequency, edge_strain, vertex_strain
 from .._scene import simulate
@@ -42,7 +43,6 @@ DRAWN_AMPLITUDE = 1 / 24  # a drawn wave's displacement amplitude, in wavelength
 # seconds of each stage at the defaults on the reference 2-thread CPU (velocity Verlet), and how they scale:
 # the steps go as 1/cfl and as the wave's length in cells, the vertices as its square (sheets) or cube (boxes)
 STAGE_SECONDS = {1: 6.7, 2: 0.6, 3: 3.0, 4: 3.2, 5: 0.2}
-WORK_BUDGET_S = 3600.0  # a stage estimated to take longer is refused
 STRETCH_TOL = 1e-8      # the static stretch's residual
 
 
@@ -62,30 +62,16 @@ def stage_seconds(cfg, stage: int) -> float:
     return STAGE_SECONDS[5] * (cfg.strip_cells / d.strip_cells) ** 3
 
 
-def time_text(seconds: float) -> str:
-    if not math.isfinite(seconds):
-        return "forever (its time step is below the float range)"
-    return (f"{seconds / 3600:.3g} h" if seconds >= 3600 else f"{seconds / 60:.0f} min" if seconds >= 60
-            else f"{seconds:.0f} s")
-
-
 def check_work(cfg) -> None:
-    """Refuse a configuration any of whose stages would take more than WORK_BUDGET_S."""
+    """Refuse a configuration any of whose stages would take more than the lessons' budget."""
     flags = {1: "--box-cells, --cfl", 2: "--wavelength, --cfl", 3: "--wavelength, --jitter-seeds, --cfl",
              4: "--box-wavelength, --cfl", 5: "--strip-cells"}
     for stage, what in flags.items():
-        seconds = stage_seconds(cfg, stage)
-        if seconds > WORK_BUDGET_S:
-            raise ParameterError(f"{what}: stage {stage} would take about {time_text(seconds)} on the reference "
-                                 f"2-thread CPU, over the lesson's budget of {time_text(WORK_BUDGET_S)}; use a larger "
-                                 "--cfl or smaller sizes")
+        refuse_over_budget(stage, stage_seconds(cfg, stage), what, "use a larger --cfl or smaller sizes")
 
 
 def announce(ctx, stage: int) -> None:
-    seconds = stage_seconds(ctx.cfg, stage)
-    if seconds > 30:
-        ctx.progress(f"this stage takes about {time_text(seconds)} on the reference 2-thread CPU (a progress bar "
-                     "follows each long run on a terminal)")
+    _budget.announce(ctx, stage_seconds(ctx.cfg, stage))
 
 
 def dispersion_reason(cells: float, tol: float = 2e-2) -> str:

@@ -23,6 +23,8 @@ from engine.recorder import RunView
 from engine.scenes import cloth
 from engine.statics import solve_static
 
+from .. import _budget
+from .._budget import refuse_over_budget
 from .._framework import Experiment
 from .._measure import edge_strain, vertex_strain
 from .._scene import simulate
@@ -117,7 +119,6 @@ EXPLICIT_STEP_S = 1.7e-3       # symplectic Euler with bending (one force evalua
 BE_ONE_NEWTON_STEP_S = 17e-3   # backward Euler, one Newton iteration, pcg (~120 CG iterations at 10 x the limit)
 BE_NEWTON_STEP_S = 65e-3       # backward Euler, Newton converged (~3.5 iterations at 100 x the limit)
 STAGE2_SECONDS = 14.7          # stage 2 at the defaults (88 coarsest steps), most of it its convergence runs
-WORK_BUDGET_S = 3600.0         # a stage estimated to take longer is refused
 SETTLED = 1e-3                 # "reaches the hanging equilibrium": max |x - x_eq| / sag at the end
 MAX_WEIGHT_STRAIN = 0.1        # rho g L / E, the strain the cloth's weight may cause (1e-3 at the defaults)
 
@@ -150,29 +151,16 @@ def stage_seconds(cfg, stage: int) -> float:
     return 0.0
 
 
-def time_text(seconds: float) -> str:
-    if not math.isfinite(seconds):
-        return "forever (its time step is below the float range)"
-    return (f"{seconds / 3600:.3g} h" if seconds >= 3600 else f"{seconds / 60:.0f} min" if seconds >= 60
-            else f"{seconds:.0f} s")
-
-
 def check_work(cfg) -> None:
-    """Refuse a configuration whose stage 1 or 2 would take more than WORK_BUDGET_S."""
+    """Refuse a configuration whose stage 1 or 2 would take more than the lessons' budget."""
     for stage, what in ((1, "--n, --E, --rho, --B, --explicit-time, --implicit-time, --below, --big, --huge"),
                         (2, "--conv-n, --conv-time, --E, --rho, --B")):
-        seconds = stage_seconds(cfg, stage)
-        if seconds > WORK_BUDGET_S:
-            raise ParameterError(f"{what}: stage {stage} would take about {time_text(seconds)} on the reference "
-                                 f"2-thread CPU, over the lesson's budget of {time_text(WORK_BUDGET_S)}; use a softer, "
-                                 "heavier or smaller cloth, or shorter times")
+        refuse_over_budget(stage, stage_seconds(cfg, stage), what,
+                           "use a softer, heavier or smaller cloth, or shorter times")
 
 
 def announce(ctx, stage: int) -> None:
-    seconds = stage_seconds(ctx.cfg, stage)
-    if seconds > 30:
-        ctx.progress(f"this stage takes up to about {time_text(seconds)} on the reference 2-thread CPU (a progress "
-                     "bar follows each long run on a terminal)")
+    _budget.announce(ctx, stage_seconds(ctx.cfg, stage), bound=True)
 
 
 def slowest_in_plane(model, x) -> float:

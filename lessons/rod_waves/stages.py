@@ -14,10 +14,11 @@ import math
 import numpy as np
 
 from engine.analysis import fit_slope, geometric_growth, peak
-from engine.errors import BlowUpError, ParameterError
+from engine.errors import BlowUpError
 from engine.integrators.loop import run as run_loop
 from engine.scenes import Rod
 
+from .._budget import ANNOUNCE_S, WORK_BUDGET_S, refuse_over_budget, time_text
 from .._framework import Experiment, check_interrupt
 from .._measure import central_gradient, expect, modal_tracks, observation_steps, rod_node_strain, track_peaks
 from .._scene import progress_bar, simulate_method
@@ -30,7 +31,7 @@ DEFAULT_SPACINGS = 10      # ... or this many node spacings on grids coarser tha
 MIN_FIT_POINTS = 3         # observations a speed fit of stage 2 needs (a line through at least three peaks)
 MODAL_MAX_NODES = 5001     # the modal reference of a damped scheme holds all n^2 mode shapes (200 MB here)
 WORK_RATE = 1.2e8          # node-steps per second of the rod's kernel on the reference 2-thread CPU
-WORK_BUDGET = 4e11         # node-steps a stage may take (about an hour at WORK_RATE); more is refused
+WORK_BUDGET = WORK_BUDGET_S * WORK_RATE  # node-steps a stage may take (the lessons' hour); more is refused
 OBSERVATION_WORK = 10.0    # an observation (copy + peak search) costs about this many node-steps per node ...
 CHUNK_WORK = 2e5           # ... on top of a launch's fixed cost (about 1.7 ms: its energies copied out, Python)
 QUIET_CHUNK = 20_000_000   # node-steps per launch of stage 3's unrecorded runs (a progress update each)
@@ -109,28 +110,23 @@ def stage_work(cfg, stage: int) -> float:
 
 def work_text(work: float) -> str:
     if not math.isfinite(work):
-        return "forever (its time step is below the float range)"
-    seconds = work / WORK_RATE
-    when = f"{seconds / 3600:.3g} h" if seconds >= 3600 else f"{seconds / 60:.0f} min" if seconds >= 60 else \
-        f"{seconds:.0f} s"
-    return f"about {work:.2g} node-steps, ~{when} at {WORK_RATE:.2g} node-steps/s"
+        return time_text(work)
+    return f"about {work:.2g} node-steps, ~{time_text(work / WORK_RATE)} at {WORK_RATE:.2g} node-steps/s"
 
 
 def check_work(cfg) -> None:
-    """Refuse a configuration any of whose stages would take more than WORK_BUDGET node-steps."""
+    """Refuse a configuration any of whose stages would take more than the lessons' budget."""
     for stage, flags in ((2, "--nodes, --cfl, --record-every"), (3, "--cfl-steps, --nodes"),
                          (4, "--nodes, --record-every")):
         work = stage_work(cfg, stage)
-        if work > WORK_BUDGET:
-            raise ParameterError(
-                f"{flags}: stage {stage} would take {work_text(work)} (the reference 2-thread CPU), over the "
-                f"lesson's budget of {WORK_BUDGET:.2g} node-steps (about an hour); use smaller values")
+        refuse_over_budget(stage, work / WORK_RATE, flags,
+                           f"that is {work:.2g} node-steps at {WORK_RATE:.2g} node-steps/s; use smaller values")
 
 
 def announce_work(ctx, stage: int) -> None:
-    """Say up front what a stage expected to take more than half a minute costs."""
+    """Say up front what a stage expected to take more than ANNOUNCE_S costs."""
     work = stage_work(ctx.cfg, stage)
-    if work / WORK_RATE > 30:
+    if work / WORK_RATE > ANNOUNCE_S:
         ctx.progress(f"this stage steps the rod for {work_text(work)} (a progress bar follows each run on a "
                      f"terminal)")
 

@@ -30,6 +30,7 @@ from engine.scenes import Rod
 from engine.recorder import RunView
 from engine.statics import solve_static
 
+from .._budget import announce, refuse_over_budget
 from .._framework import Experiment
 from .._measure import (central_difference, central_gradient, edge_strain, expect, modal_tracks, observation_steps,
                         random_rotation, rod_node_strain, track_peaks)
@@ -79,7 +80,6 @@ def simulate_fused(ctx, name: str, model: Model, state, dt: float, n_steps: int,
 STEP_S = 1e-6        # s per step of the many-steps kernel on a chain of ~12 nodes (reference 2-thread CPU)
 LAUNCH_S = 1e-3      # s per launch of a recorded run (energies copied out, observations)
 NODE_STEP_S = 2e-8   # s per node-step of stage 4's runs on long chains (observations included)
-WORK_BUDGET_S = 3600.0  # a stage estimated to take longer than this (on the reference CPU) is refused
 MAX_LAUNCH_STEPS = 2**31 - 1  # steps one launch of the many-steps kernel can take
 WOBBLE_T = {"chain": 1.0, "frame": 0.5}  # s: the energy-wobble runs of stage 2
 
@@ -122,13 +122,6 @@ def stage2_plan(cfg) -> dict:
     return dict(dt=dts, longest=longest, seconds=seconds)
 
 
-def time_text(seconds: float) -> str:
-    if not math.isfinite(seconds):
-        return "forever (its time step is below the float range)"
-    return (f"{seconds / 3600:.3g} h" if seconds >= 3600 else f"{seconds / 60:.0f} min" if seconds >= 60
-            else f"{seconds:.0f} s")
-
-
 def stage4_seconds(cfg) -> float:
     """Stage 4's time on the reference CPU: five pulse runs of about 0.9 x segments steps (dt half the
     limit h/c, 0.45 m travelled) on chains of up to 1.5 x segments nodes."""
@@ -140,23 +133,14 @@ def check_work(cfg) -> None:
     """Refuse what stage 2 cannot run (a launch past the kernel's 2^31 - 1 steps) or what would take
     hours."""
     plan = stage2_plan(cfg)
-    for stage, seconds, what in ((2, plan["seconds"], "fewer --steps, a larger --dt-fraction or --record-every, "
-                                  "or softer --chain-k/--frame-k"), (4, stage4_seconds(cfg), "fewer --wave-segments")):
-        if seconds > WORK_BUDGET_S:
-            raise ParameterError(
-                f"stage {stage} would take about {time_text(seconds)} on the reference 2-thread CPU with these "
-                f"parameters, over the lesson's budget of {time_text(WORK_BUDGET_S)}; use {what}")
+    refuse_over_budget(2, plan["seconds"], "--steps, --dt-fraction, --record-every, --chain-k, --frame-k",
+                       "use fewer --steps, a larger --dt-fraction or --record-every, or softer --chain-k/--frame-k")
+    refuse_over_budget(4, stage4_seconds(cfg), "--wave-segments", "use fewer --wave-segments")
     if plan["longest"] > MAX_LAUNCH_STEPS:
         raise ParameterError(
             f"--dt-fraction {cfg.dt_fraction:g}: stage 2's energy-wobble runs would take {plan['longest']:.3g} steps "
             f"in one launch, more than the kernel's {MAX_LAUNCH_STEPS} (use --dt-fraction >= "
             f"{cfg.dt_fraction * plan['longest'] / MAX_LAUNCH_STEPS:.2g})")
-
-
-def announce(ctx, seconds: float) -> None:
-    if seconds > 30:
-        ctx.progress(f"this stage takes up to about {time_text(seconds)} on the reference 2-thread CPU (a progress "
-                     "bar follows each long run on a terminal)")
 
 
 # ------------------------------------------------------------------------- stage 1
@@ -317,7 +301,7 @@ ORDER = {"symplectic-euler": 1, "velocity-verlet": 2}
 
 def stage_conservation(ctx):
     cfg = ctx.cfg
-    announce(ctx, stage2_plan(cfg)["seconds"])
+    announce(ctx, stage2_plan(cfg)["seconds"], bound=True)
     exps = _fused_matches_stepwise(ctx)
     nets = {"chain": swinging_chain(cfg), "frame": tet_frame(cfg)}
     for net, (model, x0, v0) in nets.items():
@@ -710,7 +694,7 @@ def stage_sound(ctx):
                            reason=f"the prediction holds all n^2 mode shapes of chains of up to {n} nodes "
                                   f"({8 * n * n / 2 ** 30:.2g} GiB); use --wave-segments <= {MODAL_MAX_NODES - 1} "
                                   "with --integrator backward-euler")]
-    announce(ctx, stage4_seconds(cfg))
+    announce(ctx, stage4_seconds(cfg), bound=True)
     rho = cfg.rho
     c = math.sqrt(cfg.E / rho)
     h = 1.0 / cfg.wave_segments
