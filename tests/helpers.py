@@ -49,3 +49,15 @@ def cli(*args, cwd, timeout=300, env=None):
     full_env.update(env or {})
     return subprocess.run([sys.executable, "-m", "lessons", *args], cwd=cwd, capture_output=True,
                           text=True, timeout=timeout, env=full_env)
+
+
+def main_in(tmp_path, monkeypatch, capture, *argv, stdin=None):
+    """lessons.cli.main(argv) run in tmp_path (stdin replaced when given); returns (rc, stdout,
+    stderr) as ``capture`` (pytest's capsys, or capfd to include what the Rerun SDK printed) saw them."""
+    import lessons.cli as cli_mod
+    monkeypatch.chdir(tmp_path)
+    if stdin is not None:
+        monkeypatch.setattr(sys, "stdin", stdin)
+    rc = cli_mod.main(list(argv))
+    captured = capture.readouterr()
+    return rc, captured.out, captured.err

@@ -7,7 +7,7 @@ import sys
 import pytest
 
 from lessons.output import read_results, result_rows
-from tests.helpers import cli
+from tests.helpers import cli, main_in
 
 
 def test_list_prints_one_line_per_lesson(tmp_path):
@@ -179,17 +179,6 @@ def test_parse_stages_rejects_bad_forms_naming_the_range(values, shown):
     assert message.endswith(shown)
 
 
-def _main(monkeypatch, tmp_path, capsys, *argv, stdin=None):
-    """lessons.cli.main(argv) in tmp_path (stdin replaced when given); returns (rc, stdout, stderr)."""
-    import lessons.cli as cli_mod
-    monkeypatch.chdir(tmp_path)
-    if stdin is not None:
-        monkeypatch.setattr(sys, "stdin", stdin)
-    rc = cli_mod.main(list(argv))
-    captured = capsys.readouterr()
-    return rc, captured.out, captured.err
-
-
 def _stages_run(out, lesson="rod-waves"):
     """The stage numbers whose headers ("== <id> · stage i/n: title") the output shows, in order."""
     return [int(i) for i in re.findall(rf"^== {re.escape(lesson)} · stage (\d+)/\d+: ", out, re.MULTILINE)]
@@ -210,7 +199,7 @@ def _stages_run(out, lesson="rod-waves"):
 def test_bad_stage_values_are_one_line_exit_2_and_write_nothing(monkeypatch, tmp_path, capsys, argv, needle):
     import lessons.cli as cli_mod
     monkeypatch.setattr(cli_mod, "run_lesson", lambda *a, **k: pytest.fail("a stage ran"))
-    rc, out, err = _main(monkeypatch, tmp_path, capsys, "run", "rod-waves", *argv, "--results", "res.json")
+    rc, out, err = main_in(tmp_path, monkeypatch, capsys, "run", "rod-waves", *argv, "--results", "res.json")
     assert rc == 2
     lines = err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("python -m lessons: error: --stage must be in 1..4"), err
@@ -219,12 +208,12 @@ def test_bad_stage_values_are_one_line_exit_2_and_write_nothing(monkeypatch, tmp
 
 
 def test_stage_with_all_is_still_refused(monkeypatch, tmp_path, capsys):
-    rc, out, err = _main(monkeypatch, tmp_path, capsys, "run", "all", "--stage", "1-2", "--no-record")
+    rc, out, err = main_in(tmp_path, monkeypatch, capsys, "run", "all", "--stage", "1-2", "--no-record")
     assert rc == 2 and "--stage needs a single lesson, not 'all'" in err and len(err.strip().splitlines()) == 1
 
 
 def test_stage_list_and_repeats_run_those_stages_in_ascending_order(monkeypatch, tmp_path, capsys):
-    rc, out, err = _main(monkeypatch, tmp_path, capsys, "run", "rod-waves", "--stage", "4,1", "--stage", "1-1",
+    rc, out, err = main_in(tmp_path, monkeypatch, capsys, "run", "rod-waves", "--stage", "4,1", "--stage", "1-1",
                          "--no-record", "--quiet", "--results", "res.json")
     assert rc == 0, err
     assert _stages_run(out) == [1, 4]
@@ -244,7 +233,7 @@ def test_pause_is_refused_when_stdin_is_not_a_tty(monkeypatch, tmp_path, capsys,
     import lessons.cli as cli_mod
     monkeypatch.setattr(cli_mod, "run_lesson", lambda *a, **k: pytest.fail("a stage ran"))
     monkeypatch.setattr(sys, "stdin", stdin)  # None: no stdin at all (e.g. a detached process)
-    rc, out, err = _main(monkeypatch, tmp_path, capsys, "run", "rod-waves", "--pause", "--results", "res.json")
+    rc, out, err = main_in(tmp_path, monkeypatch, capsys, "run", "rod-waves", "--pause", "--results", "res.json")
     assert rc == 2
     assert err.strip().splitlines() == [
         "python -m lessons: error: --pause needs an interactive terminal (stdin is not a tty); run without "
@@ -254,7 +243,7 @@ def test_pause_is_refused_when_stdin_is_not_a_tty(monkeypatch, tmp_path, capsys,
 
 def test_pause_waits_for_enter_between_stages_and_q_stops(monkeypatch, tmp_path, capsys):
     stdin = _FakeTty("\nq\n")
-    rc, out, err = _main(monkeypatch, tmp_path, capsys, "run", "rod-waves", "--stage", "1-2,4", "--pause",
+    rc, out, err = main_in(tmp_path, monkeypatch, capsys, "run", "rod-waves", "--stage", "1-2,4", "--pause",
                          "--no-record", "--quiet", "--results", "res.json", stdin=stdin)
     assert rc == 0, err
     assert _stages_run(out) == [1, 2]
@@ -275,7 +264,7 @@ def test_pause_waits_for_enter_between_stages_and_q_stops(monkeypatch, tmp_path,
 
 def test_pause_stops_at_end_of_input_and_keeps_the_exit_code_of_what_ran(monkeypatch, tmp_path, capsys):
     # stage 2 fails under forward Euler; Ctrl-D (end of input) at the prompt stops like q
-    rc, out, err = _main(monkeypatch, tmp_path, capsys, "run", "rod-waves", "--stage", "2,4", "--integrator",
+    rc, out, err = main_in(tmp_path, monkeypatch, capsys, "run", "rod-waves", "--stage", "2,4", "--integrator",
                          "forward-euler",
                          "--pause", "--no-record", "--quiet", "--results", "res.json", stdin=_FakeTty(""))
     assert rc == 1
@@ -291,7 +280,7 @@ def test_pause_with_all_pauses_between_stages_and_between_lessons(monkeypatch, t
     first, second = registry.all_lessons()[:2]
     n = len(registry.all_lessons())
     answers = "\n" * (len(first.stages) - 1) + "q\n"
-    rc, out, err = _main(monkeypatch, tmp_path, capsys, "run", "all", "--pause", "--no-record", "--quiet",
+    rc, out, err = main_in(tmp_path, monkeypatch, capsys, "run", "all", "--pause", "--no-record", "--quiet",
                          stdin=_FakeTty(answers))
     assert rc == 0, err
     assert _stages_run(out, first.id) == list(range(1, len(first.stages) + 1))
@@ -300,3 +289,12 @@ def test_pause_with_all_pauses_between_stages_and_between_lessons(monkeypatch, t
     assert (f"press Enter for lesson 2/{n}: {second.id}, stage 1/{len(second.stages)}: {second.stages[0].title}, "
             f"or q + Enter to stop") in out
     assert "stopped before lesson 2/" in out
+
+
+def test_results_rows_carry_the_reason_a_claim_is_known_to_fail():
+    from lessons._framework import Experiment
+    failed = Experiment("pulse speed", 1.0, 0.9, 0.01, id="speed", reason="the pulse is 2 spacings wide")
+    held = Experiment("pulse speed", 1.0, 1.0, 0.01, id="speed", reason="the pulse is 2 spacings wide")
+    row = failed.to_dict("rod-waves", 2)
+    assert row["passed"] is False and row["reason"] == "the pulse is 2 spacings wide"
+    assert held.to_dict("rod-waves", 2)["reason"] == ""   # a claim that held has nothing to explain

@@ -14,19 +14,7 @@ from engine import runtime
 from engine.outfile import OutputFile
 from engine.recorder import run_status, summarize
 from lessons.output import read_results, result_rows
-from tests.helpers import ROOT
-
-
-def main_in(tmp_path, monkeypatch, capfd, *argv, stdin=None):
-    """lessons.cli.main(argv) in tmp_path; returns (rc, stdout, stderr) as written to the file
-    descriptors (anything the Rerun SDK printed included)."""
-    import lessons.cli as cli_mod
-    monkeypatch.chdir(tmp_path)
-    if stdin is not None:
-        monkeypatch.setattr(sys, "stdin", stdin)
-    rc = cli_mod.main(list(argv))
-    captured = capfd.readouterr()
-    return rc, captured.out, captured.err
+from tests.helpers import ROOT, main_in
 
 
 def no_stage_runs(monkeypatch):
