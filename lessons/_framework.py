@@ -230,7 +230,8 @@ class Experiment:
             return v if math.isfinite(v) else None
         return dict(lesson=lesson, stage=stage, stage_title=stage_title, id=self.id, claim=self.claim,
                     theory=num(self.theory), measured=num(self.measured), tolerance=self.tolerance,
-                    comparison=self.compare, unit=self.unit, passed=self.passed)
+                    comparison=self.compare, unit=self.unit, passed=self.passed,
+                    reason=self.reason if not self.passed else "")
 
 
 def _fmt(v: float) -> str:
