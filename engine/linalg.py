@@ -600,6 +600,13 @@ class PCGSolver(LinearSolver):
         return self._info(it, residual, message)
 
 
+def _norm(a: np.ndarray) -> float:
+    """|a| without BLAS: numpy's threaded ddot leaves an OpenBLAS thread spinning on the second
+    core for ~0.1 s (unless OPENBLAS_THREAD_TIMEOUT was set before numpy loaded, see
+    engine/__init__.py), which slowed the factorisation that follows by ~1.7x."""
+    return math.sqrt(float(np.square(a).sum()))
+
+
 class DirectSolver(LinearSolver):
     """A sparse direct solve of (L1)-(L2), shared by the backends: assemble A' = A/c, factorise,
     back-substitute, then check the residual (L3) with the matrix-free product and take up to
@@ -641,7 +648,7 @@ class DirectSolver(LinearSolver):
         free = entry["free_dofs"]
         rhs = np.asarray(b.to_numpy(), dtype=np.float64).reshape(-1) / c
         rhs[~free] = 0.0
-        bnorm = float(np.linalg.norm(rhs))
+        bnorm = _norm(rhs)
         if bnorm == 0.0:
             zero_vec3(y)
             return self._info(0, 0.0)
@@ -654,7 +661,7 @@ class DirectSolver(LinearSolver):
             _apply_plan(model, plan, a / c, y, q)  # q = A' y
             res = rhs - q.to_numpy().astype(np.float64).reshape(-1)
             res[~free] = 0.0
-            residual = float(np.linalg.norm(res)) / bnorm
+            residual = _norm(res) / bnorm
             if residual <= self.tol or it > self.refinements or not np.isfinite(residual):
                 break
             sol = sol + np.asarray(self._backsolve(entry, res), dtype=np.float64).reshape(-1)  # refinement
