@@ -24,6 +24,7 @@ CLOTH_E, CLOTH_RHO, CLOTH_B = 1e3, 0.1, 1e-4
 IMPLICIT_DT = 1.0 / 60.0
 IMPLICIT_TOL = {64: 1e-5, 32: 1e-4}   # relative residual by precision (f32 cannot reach 1e-5: see report)
 F32_TOL_FALLBACK = (1e-4, 3e-4, 1e-3)  # f32: the first of these that the solver reaches is used (and recorded)
+EXPLICIT_BLOCK = 10    # steps per call of the explicit "block" rows (the lessons step many times per launch)
 ROD_E, ROD_RHO = 1.0, 1.0
 ROD_IMPLICIT_NU = 10.0                # rod backward-Euler dt = 10 h/c (10x the explicit limit)
 

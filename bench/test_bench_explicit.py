@@ -61,6 +61,29 @@ def test_explicit_step(benchmark, side, model, impl):
     assert np.all(np.isfinite(st.numpy().x))
 
 
+@pytest.mark.parametrize("model", list(MODELS))
+@pytest.mark.parametrize("side", SIZES)
+def test_explicit_block(benchmark, side, model):
+    """config.EXPLICIT_BLOCK steps per call, as a lesson takes them between two recorded frames: the
+    engine takes them in one launch (cloth_steps) where it can; the peers are timed over the same
+    block (test_peers_explicit.py, group "cloth-explicit-block")."""
+    bending = MODELS[model]
+    c = config.cloth_scene(side, bending)
+    x0, v0 = config.cloth_start_state(c)
+    info = _info(c, bending)
+    st = c.model.make_state(x0, v0)
+    step = integrator("symplectic-euler")
+    k = config.EXPLICIT_BLOCK
+
+    def run():
+        step.step(c.model, st, DT, k)
+        sync()
+
+    measure(benchmark, run, group="cloth-explicit-block", steps=k, impl="engine", model=model, kernel="explicit_step",
+            bytes=traffic.kernel_bytes("explicit_step", info["n"], info["m"], info["h"], _fb()), **info)
+    assert np.all(np.isfinite(st.numpy().x))
+
+
 KERNELS = ["zero", "spring_gather", "spring_atomic", "spring_serial", "hinge_pass1", "hinge_gather",
            "bending_gather", "bending_atomic", "bending_serial", "update"]
 

@@ -7,8 +7,9 @@ and float32 (see :func:`_f32_force_bound` for what float32 can resolve).  The pe
 are optional: without numba or warp their tests are skipped with the reason.
 
 Timed (``python -m pytest bench/test_peers_explicit.py --benchmark-enable --benchmark-only``): one
-step per call, like the engine's body in bench/test_bench_explicit.py, in the same group and with
-the same info keys (impl "numba" | "warp"), so that a report puts them in the engine's rows.  In the
+step per call and config.EXPLICIT_BLOCK steps per call, like the engine's bodies in
+bench/test_bench_explicit.py, in the same groups and with the same info keys (impl "numba" |
+"warp"), so that a report puts them in the engine's rows.  In the
 default test run each body runs once on the smoke profile's tiny cloth.
 """
 import numpy as np
@@ -187,13 +188,15 @@ SIZES = config.sizes("cloth")
 MODELS = {"springs+bending": True, "springs": False}
 
 
+@pytest.mark.parametrize("block", [1, config.EXPLICIT_BLOCK], ids=["1-step", f"{config.EXPLICIT_BLOCK}-steps"])
 @pytest.mark.parametrize("impl", PEERS)
 @pytest.mark.parametrize("model", list(MODELS))
 @pytest.mark.parametrize("side", SIZES)
-def test_explicit_step_peer(benchmark, side, model, impl):
-    """One symplectic-Euler step per call (as the engine's body), in the engine's precision
-    (ELASTIC_FP) on the bench's start state; the first call (Numba/Warp compilation or cache load)
-    runs before the clock."""
+def test_explicit_step_peer(benchmark, side, model, impl, block):
+    """``block`` symplectic-Euler steps per call (as the engine's bodies: one step, group
+    "cloth-explicit-step"; config.EXPLICIT_BLOCK steps, group "cloth-explicit-block"), in the
+    engine's precision (ELASTIC_FP) on the bench's start state; the first call (Numba/Warp
+    compilation or cache load) runs before the clock."""
     bending = MODELS[model]
     c = config.cloth_scene(side, bending)
     x0, v0 = config.cloth_start_state(c)
@@ -206,16 +209,17 @@ def test_explicit_step_peer(benchmark, side, model, impl):
         peer.step(x.copy(), v.copy(), DT, 1)   # compile or load from the cache
 
         def run():
-            peer.step(x, v, DT, 1)
+            peer.step(x, v, DT, block)
         threads, layer = peer.threads, peer.layer
     else:
         peer.load(x, v)
         peer.advance(DT, 1)                    # compile or load from the cache, record the launches
 
         def run():
-            peer.advance(DT, 1)                # CPU launches return when done
+            peer.advance(DT, block)            # CPU launches return when done
         threads, layer = 1, "warp cpu (serial)"
-    measure(benchmark, run, group="cloth-explicit-step", impl=impl, model=model, kernel="explicit_step",
+    measure(benchmark, run, group="cloth-explicit-step" if block == 1 else "cloth-explicit-block", steps=block,
+            impl=impl, model=model, kernel="explicit_step",
             bytes=traffic.kernel_bytes("explicit_step", info["n"], info["m"], info["h"], dtype.itemsize),
             peer_threads=threads, peer_layer=layer, **info)
     final = x if impl == "numba" else peer.numpy()[0]

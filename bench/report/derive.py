@@ -197,12 +197,13 @@ def peer_ratios(rows: list) -> list:
     (engine / peer: below 1 the engine is faster) and the engine row's bandwidth floor."""
     out = []
     for cfg in CONFIGS:
-        for model in ("springs+bending", "springs"):
-            for side in sorted({r["side"] for r in rows if r.get("config") == cfg
-                                and r.get("group") == "cloth-explicit-step" and r.get("model") == model}):
-                rs = [r for r in rows if r.get("config") == cfg and r.get("group") == "cloth-explicit-step"
-                      and r.get("model") == model and r.get("side") == side and r.get("per_step_s")]
-                out.append(_ratio_entry("explicit", cfg, side, model, rs, EXPLICIT_PEERS))
+        for group in ("cloth-explicit-step", "cloth-explicit-block"):
+            for model in ("springs+bending", "springs"):
+                for side in sorted({r["side"] for r in rows if r.get("config") == cfg
+                                    and r.get("group") == group and r.get("model") == model}):
+                    rs = [r for r in rows if r.get("config") == cfg and r.get("group") == group
+                          and r.get("model") == model and r.get("side") == side and r.get("per_step_s")]
+                    out.append(_ratio_entry("explicit", cfg, side, _explicit_what(model, rs), rs, EXPLICIT_PEERS))
         for group, kind in (("cloth-implicit-step", "implicit"), ("cloth-implicit-sequence", "sequence")):
             sides = sorted({r["side"] for r in rows if r.get("config") == cfg and r.get("group") == group})
             for side in sides:
@@ -212,6 +213,12 @@ def peer_ratios(rows: list) -> list:
                     rs = _implicit_rows(rows, cfg, side, tol, group)
                     out.append(_ratio_entry(kind, cfg, side, f"tol {tol:.0e}", rs, None))
     return [e for e in out if e]
+
+
+def _explicit_what(model: str, rs: list) -> str:
+    """The comparison's name: the model, and the steps per call when more than one (block rows)."""
+    k = max((int(r.get("steps_per_call", 1) or 1) for r in rs), default=1)
+    return model if k == 1 else f"{model}, {k} steps per call"
 
 
 def _ratio_entry(kind, cfg, side, what, rs, peer_names):
@@ -263,18 +270,21 @@ def targets(doc: dict) -> list:
                      f"<= {SEQUENCE_TARGET_RATIO:g} x the fastest contender", pick("sequence", "t2-f64"),
                      SEQUENCE_TARGET_RATIO))
     out[-1]["why"] = _why_sequence(ratios)
+    blocks = sorted({p["what"].split(", ", 1)[1] for p in ratios if p["kind"] == "explicit" and ", " in p["what"]})
     for cfg in ("t2-f64", "t2-f32"):
         for model in ("springs+bending", "springs"):
-            t = judge(f"explicit step, {model}, 64^2 to 256^2, {cfg}",
-                      f"<= {EXPLICIT_TARGET_RATIO:g} x the faster of Warp and Numba",
-                      [p for p in pick("explicit", cfg, what=model) if 64 <= p["side"] <= 256],
-                      EXPLICIT_TARGET_RATIO)
-            if cfg == "t2-f64" and model == "springs+bending":
-                r = find(rows, config="t2-f64", group="cloth-explicit-step", impl="engine", model=model,
-                         side=TARGET_SIDE)
-                if r:
-                    t["why"] = _why_explicit(rows, TARGET_SIDE, r)
-            out.append(t)
+            for block in [None] + blocks:
+                what = model if block is None else f"{model}, {block}"
+                t = judge(f"explicit step, {what if block else model + ', one step per call'}, 64^2 to 256^2, {cfg}",
+                          f"<= {EXPLICIT_TARGET_RATIO:g} x the faster of Warp and Numba (timed over the same steps)",
+                          [p for p in pick("explicit", cfg, what=what) if 64 <= p["side"] <= 256],
+                          EXPLICIT_TARGET_RATIO)
+                if cfg == "t2-f64" and model == "springs+bending" and block is None:
+                    r = find(rows, config="t2-f64", group="cloth-explicit-step", impl="engine", model=model,
+                             side=TARGET_SIDE)
+                    if r:
+                        t["why"] = _why_explicit(rows, TARGET_SIDE, r)
+                out.append(t)
     # every kernel's fraction of the bandwidth floor: reported
     side = TARGET_SIDE
     ks = [find(rows, config="t2-f64", group="cloth-force-kernels", kernel=k, side=side) for k in STEP_KERNELS]
@@ -318,14 +328,16 @@ def _why_explicit(rows, side, step) -> list:
     if all(ks.values()):
         total = sum(k["per_step_s"] for k in ks.values())
         parts = ", ".join(f"{k} {v['per_step_s'] * 1e6:.0f} us ({v['per_step_s'] / total:.0%})" for k, v in ks.items())
-        why.append(f"The engine's step is one kernel launch (engine/integrators/kernels.py, one_launch_step: the per-hinge "
-                   f"pass, then per vertex the spring and hinge gathers with the velocity update, then the "
-                   f"position update); its {len(ks)} parts, launched alone as the generic path does, take {parts} "
+        why.append(f"The engine's step is one kernel launch (engine/integrators/kernels.py, cloth_step: one parallel "
+                   f"loop over vertex blocks, each block summing its vertices' spring and hinge forces in the "
+                   f"generic path's order and updating them; cloth_steps takes many steps in one launch); the "
+                   f"{len(ks)} kernels of the generic path, launched alone, take {parts} "
                    f"(sum {total * 1e3:.3f} ms against {step['per_step_s'] * 1e3:.3f} ms for the fused step).")
         bend = ks["hinge_pass1"]["per_step_s"] + ks["hinge_gather"]["per_step_s"]
-        why.append(f"Bending costs {bend * 1e6:.0f} us of it ({bend / total:.0%}): the per-hinge pass evaluates "
-                   f"atan2, three cross products, square roots and divisions for ~{step['h']} hinges and writes "
-                   f"4 vectors per hinge, which the gather pass reads back.")
+        why.append(f"Bending costs {bend * 1e6:.0f} us of the generic path ({bend / total:.0%}): its per-hinge pass "
+                   f"evaluates the dihedral angle, cross products, square roots and divisions for ~{step['h']} "
+                   f"hinges and writes 4 vectors per hinge, which its gather pass reads back (the fused step "
+                   f"adds them to the block's sums instead).")
         z = ks["zero"]["per_step_s"]
         why.append(f"A launch that only zeroes f takes {z * 1e6:.0f} us, which bounds the fixed cost per "
                    f"kernel on this machine (parallel-for launch + Python argument handling + ti.sync).")
@@ -336,8 +348,11 @@ def _why_explicit(rows, side, step) -> list:
                        f"per-hinge vectors written and read back, a fixed launch cost).")
     sp = find(rows, config="t2-f64", group="cloth-explicit-step", impl="engine", model="springs", side=side)
     if sp:
-        why.append(f"Without bending the engine's step is {sp['ns_per_vertex']:.1f} ns/vertex "
-                   f"(the Warp CPU / Numba mass-spring steps without bending measured ~45 ns/vertex here).")
+        peers = [find(rows, config="t2-f64", group="cloth-explicit-step", impl=k, model="springs", side=side)
+                 for k in EXPLICIT_PEERS]
+        peers = ", ".join(f"{p['impl']} {p['ns_per_vertex']:.1f}" for p in peers if p and p.get("ns_per_vertex"))
+        why.append(f"Without bending the engine's step is {sp['ns_per_vertex']:.1f} ns/vertex"
+                   + (f" (the peers' in the same run: {peers})." if peers else "."))
     f32 = find(rows, config="t2-f32", group="cloth-explicit-step", impl="engine", model="springs+bending", side=side)
     if f32:
         why.append(f"In f32 the same step is {f32['ns_per_vertex']:.1f} ns/vertex.")
