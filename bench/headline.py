@@ -10,7 +10,8 @@ B = 1e-4 N m) and each stretching modulus E:
   dt_exp from the benchmark's start state must keep the total energy finite and bounded, else s
   drops by 0.1 (soft cloth stretches under its weight, which stiffens it transversally: its
   limit falls below the rest-state estimate).  The explicit step's cost does not depend on E
-  (the same kernels), so it is timed once per resolution and divided by each dt_exp.
+  (the same kernels), so it is timed once per resolution (launches of 50 steps, as a run between
+  two displayed frames takes them) and divided by each dt_exp.
 * backward Euler (one Newton iteration, no line search, PCG at rtol 1e-5 and the fastest direct
   solver installed: engine.linalg "direct", MKL PARDISO with the ``fast`` extra, else Eigen) at
   dt = 1/60 s and at the accuracy-matched dt (below); a few steps are timed from the start state
@@ -102,7 +103,10 @@ def crossover(E, explicit, implicit):
     return None, "no single crossover"
 
 
-def _time_explicit(model, x0, v0, rounds=20, steps=5):
+def _time_explicit(model, x0, v0, rounds=10, steps=50):
+    """Seconds per explicit step, timed over launches of ``steps`` steps (as a run between two
+    displayed frames takes them: 50 steps are a 60 fps frame at dt ~ 3e-4 s); the median of
+    ``rounds``."""
     import taichi as ti
 
     from engine.integrators import get

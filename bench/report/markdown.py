@@ -31,11 +31,11 @@ def markdown(doc: dict, image_prefix: str) -> str:
     L += [f"Profile **{doc.get('profile', '?')}** (`{doc.get('command', 'python -m bench')}`), "
           f"wall time {_fmt(doc.get('wall_s'), '.0f')} s. Timings are medians of the rounds shown; "
           f"every engine call ends with `ti.sync()` and runs after warm-up (compilation) outside the clock.", ""]
-    loads = [x for x in ((m.get("load_average") or [None])[0], (doc.get("load_average_end") or [None])[0])
-             if x is not None]
+    # the load at the start says what else ran; at the end it counts the benchmark's own two threads
+    start_load = (m.get("load_average") or [None])[0]
     cores = m.get("affinity") or m.get("cores") or 0
-    if loads and cores and max(loads) > 0.75 * cores:
-        L += [f"**The machine was busy during this run** (1-minute load average up to {max(loads):.1f} on {cores} "
+    if start_load is not None and cores and start_load > 0.75 * cores:
+        L += [f"**The machine was busy when this run started** (1-minute load average {start_load:.1f} on {cores} "
               f"cores): absolute times are inflated and 2-thread kernels suffer most; ratios measured within one "
               f"process (engine vs baseline, kernel vs copy floor) hold better. Re-measure on a quiet machine.", ""]
     if doc.get("errors"):
@@ -99,7 +99,8 @@ def _headline_md(h, image_prefix) -> list:
           f"backward Euler removes at most {h['accuracy_loss']:.0%} of the energy of the cloth's slowest mode "
           f"(the sheet swinging about its pin line, w1 = sqrt(3g/2L) = {h['pendulum_omega']:.2f} rad/s) per simulated "
           f"second, (1 + w1^2 dt^2)^(-1/dt) >= {1 - h['accuracy_loss']:.2f}. Costs are measured by timing a few steps "
-          f"and dividing by dt (the explicit step once per resolution: its kernels do not depend on E).", ""]
+          f"and dividing by dt (the explicit step once per resolution, in launches of 50 steps as a run between two "
+          f"displayed frames takes them: its kernels do not depend on E).", ""]
     L += [f"![cost per simulated second against E]({image_prefix}cost_vs_E.png)", ""]
     cross = []
     for side, s in h["sides"].items():
