@@ -94,7 +94,7 @@ def test_many_steps_kernel_with_more_blocks_than_threads():
     v0 = start(model, seed=19)
     dt = 0.5 * stable_dt_estimate(model)
     I, F, _ = cloth_plan(model, runtime.current().threads + 3)
-    w, sync = vec3_ndarray(4 * model.n), int_ndarray(np.zeros(3))
+    w, sync = vec3_ndarray(4 * model.n), int_ndarray(np.zeros(K.SYNC_SIZE))
     steps = K.BoundKernel(K.cloth_steps, (w, I, F, sync, K.SPIN_LIMIT), (K.CLOTH_SE, True))
     st = model.make_state(None, v0)
     assert steps(st.x, st.v, dt, 20) == 0

@@ -181,7 +181,7 @@ def cloth_stepper(model: Model, n_blocks: int):
         w = d["cloth_w"] = vec3_ndarray(4 * n)  # spring sums, hinge sums, boundary x, Verlet acceleration
     sync = d.get("cloth_sync")
     if sync is None:
-        sync = d["cloth_sync"] = int_ndarray(np.zeros(3))
+        sync = d["cloth_sync"] = int_ndarray(np.zeros(K.SYNC_SIZE))
     with_h = sig == ("springs", "hinges")
     launch = {what: K.BoundKernel(K.cloth_step, (w, I, F), (what, with_h, n_boundary > 0))
               for what in (K.CLOTH_SE, K.CLOTH_VV, K.CLOTH_VV_BEGIN)}

@@ -379,6 +379,10 @@ def cloth_step(x: vec3_array, v: vec3_array, dt: float, w: vec3_array, I: int_ar
             x[j] = w[2 * I[H_N] + j]
 
 
+# cloth_steps' counters, each on a cache line of its own inside a 64-entry i32 array (entries
+# 16, 32, 48: no other allocation can share their lines), so that a thread polling one counter
+# does not contend with the other thread's writes to another, or to a neighbouring array
+SYNC_SIZE, SYNC_TICKET, SYNC_DONE, SYNC_STOP = 64, 16, 32, 48
 SPIN_LIMIT = 1 << 27  # polls (~3-10 s) of one wait before cloth_steps gives up and reports it (its default)
 
 
@@ -413,35 +417,35 @@ def cloth_steps(x: vec3_array, v: vec3_array, dt: float, n_steps: ti.i32, w: vec
     """``n_steps`` steps of :func:`cloth_step` (what = CLOTH_SE or CLOTH_VV) in ONE launch. A step is
     two phases (see :func:`_cloth_phase`), each one task per block; the tasks are numbered in order
     (phase p, block b: ticket p nb + b) and every thread of the launch takes the next ticket
-    (sync[0], an integer atomic), waits until the tasks of the phases before it are done (sync[1]
+    (sync[SYNC_TICKET], an integer atomic), waits until the tasks of the phases before it are done (sync[SYNC_DONE]
     counts them) and does it. Each task runs once and after all of the previous phase, so the
     state is the one of n_steps single-step launches (bitwise), whatever the threads do; a thread
     that starts late finds the others have done its share, and one thread alone does everything
     (nothing waits for a thread that is not running). A parallel loop costs a wake-up of the thread
     pool, 20-60 us here; a phase a few cache-line transfers. Returns 0, or 1 when a wait for the
     tasks before a ticket exceeded ``spin_limit`` polls (the state is then part-way through a step)."""
-    sync[0] = 0
-    sync[1] = 0
-    sync[2] = 0
+    sync[SYNC_TICKET] = 0
+    sync[SYNC_DONE] = 0
+    sync[SYNC_STOP] = 0
     for it in range(I[H_NB] * BLOCK_SLOTS):   # one worker per thread (see cloth_step's loop)
         if it % BLOCK_SLOTS == 0:
             nb = I[H_NB]
             last = 2 * n_steps * nb
             while True:
-                t = ti.atomic_add(sync[0], 1)
-                if t >= last or sync[2] != 0:
+                t = ti.atomic_add(sync[SYNC_TICKET], 1)
+                if t >= last or sync[SYNC_STOP] != 0:
                     break
                 p = t // nb
                 k = 0
-                while ti.atomic_or(sync[1], 0) < p * nb and sync[2] == 0 and k < spin_limit:
+                while ti.atomic_or(sync[SYNC_DONE], 0) < p * nb and sync[SYNC_STOP] == 0 and k < spin_limit:
                     k += 1
                 if k >= spin_limit:
-                    sync[2] = 1
-                if sync[2] != 0:
+                    sync[SYNC_STOP] = 1
+                if sync[SYNC_STOP] != 0:
                     break
                 _cloth_phase(p, t % nb, x, v, w, I, F, dt, what, with_hinges)
-                ti.atomic_add(sync[1], 1)
-    return sync[2]
+                ti.atomic_add(sync[SYNC_DONE], 1)
+    return sync[SYNC_STOP]
 
 
 @ti.func
