@@ -89,6 +89,8 @@ def _engine_step(benchmark, side, solver, tol):
     # (the pattern, the symbolic analysis), as each peer's first step outside the clock does
     measure(benchmark, run, setup=reset, group="cloth-implicit-step", impl="engine-" + solver, solver=solver,
             tol=tol, tol_failed=failed, expect_s=_expect(*key, side), warmup=1, **info)
+    timed = benchmark.stats.stats.rounds if benchmark.stats else len(split)
+    iters, split = iters[-timed:], split[-timed:]   # the timed rounds only, not the warm-up calls
     it = int(np.median(iters))
     benchmark.extra_info["linear_iterations"] = it
     if split and split[-1]:
