@@ -85,8 +85,9 @@ class NumpyCloth:
         gv1 = -t0 * g0 - t1 * g1
         return theta, (gv0, gv1, g0, g1)
 
-    def forces(self, x):
-        """-grad W + M g on free vertices, 0 on pinned ones."""
+    def forces(self, x, hinge_terms=None):
+        """-grad W + M g on free vertices, 0 on pinned ones.  ``hinge_terms``: _hinge_terms(x)
+        when already computed."""
         f = np.zeros((self.n, 3))
         d = x[self.j] - x[self.i]
         l = np.sqrt(np.einsum("ij,ij->i", d, d))
@@ -95,7 +96,7 @@ class NumpyCloth:
         self._scatter(self.i, fi, f)
         self._scatter(self.j, -fi, f)
         if self.H is not None and len(self.H):
-            theta, grads = self._hinge_terms(x)
+            theta, grads = hinge_terms or self._hinge_terms(x)
             s = (-self.k * (theta - self.theta_bar))[:, None]  # -dW/dtheta
             for a, grad in enumerate(grads):
                 self._scatter(self.H[:, a], s * grad, f)
@@ -109,41 +110,79 @@ class NumpyCloth:
         return x, v
 
     # -- implicit --------------------------------------------------------------------------------
-    def hessian_blocks(self, x):
-        """The PSD element blocks (springs (S4) + Gauss-Newton hinges) as (nb, 3, 3) with their
-        row and column vertices, in a fixed order (the pattern does not depend on x)."""
+    # The PSD element blocks, as values: each spring's K (9 values, placed +K at (i,i) and (j,j),
+    # -K at (i,j) and (j,i)) and each hinge's k g_a g_b^T for the 10 slot pairs a <= b (9 values
+    # each, placed at (a,b) and, transposed, at (b,a)).  A careful numpy user computes only these
+    # values per step and sends them through a scatter map built once: a sparse matrix S with one
+    # entry (+1 or -1) per placement kept, so that the CSR values are S @ values.
+    _PAIRS = [(a, b) for a in range(4) for b in range(a, 4)]
+
+    def block_values(self, x, grads=None):
+        """The per-step values (springs' K, then the hinges' 10 blocks), flat, written into one
+        buffer kept between steps.  ``grads``: the hinge gradients at x when already computed."""
+        m = len(self.i)
+        h = 0 if self.H is None else len(self.H)
+        if getattr(self, "_values", None) is None:
+            self._values = np.empty(9 * m + 9 * len(self._PAIRS) * h)
         d = x[self.i] - x[self.j]
         l = np.sqrt(np.einsum("ij,ij->i", d, d))
         u = d / l[:, None]
         s = np.maximum(0.0, (l - self.L) / l)
         k = self.c / self.L ** 2
-        uu = np.einsum("ea,eb->eab", u, u)
-        K = k[:, None, None] * (uu + s[:, None, None] * (np.eye(3) - uu))           # (m, 3, 3)
-        vi, vj = self.i, self.j
-        blocks = [K, K, -K, -K]
-        rows_v = [vi, vj, vi, vj]
-        cols_v = [vi, vj, vj, vi]
-        if self.H is not None and len(self.H):
-            _, grads = self._hinge_terms(x)
-            G = np.stack(grads, axis=1)                                             # (h, 4, 3)
-            Hb = self.k[:, None, None, None, None] * np.einsum("hai,hbj->habij", G, G)  # (h, 4, 4, 3, 3)
-            for a in range(4):
-                for b in range(4):
-                    blocks.append(Hb[:, a, b])
-                    rows_v.append(self.H[:, a])
-                    cols_v.append(self.H[:, b])
-        return np.concatenate(blocks), np.concatenate(rows_v), np.concatenate(cols_v)
+        K = self._values[:9 * m].reshape(m, 3, 3)
+        np.einsum("ea,eb->eab", ((k * (1.0 - s))[:, None] * u), u, out=K)
+        K[:, [0, 1, 2], [0, 1, 2]] += (k * s)[:, None]                         # k (uu^T + s (I - uu^T))
+        if h:
+            if grads is None:
+                _, grads = self._hinge_terms(x)
+            G = np.stack(grads, axis=1)                                           # (h, 4, 3)
+            pa, pb = self._pair_index
+            Hb = self._values[9 * m:].reshape(h, len(self._PAIRS), 3, 3)
+            np.einsum("hpi,hpj->hpij", self.k[:, None, None] * G[:, pa], G[:, pb], out=Hb)
+        return self._values
 
-    def _pattern(self, rv, cv, upper: bool):
-        """The CSR pattern of the free-dof matrix (full, or its upper triangle) and the map from
-        each kept block entry to its CSR position: computed once (the COO -> CSR sort a careful
-        user does once, not every step)."""
+    @property
+    def _pair_index(self):
+        return (np.array([a for a, _ in self._PAIRS]), np.array([b for _, b in self._PAIRS]))
+
+    def _placements(self):
+        """(value index, row vertex, column vertex, component a, component b, sign, transposed copy
+        allowed) of every placement of every value, in the value order of ``block_values``."""
+        m = len(self.i)
+        comp_a, comp_b = np.divmod(np.arange(9), 3)
+        vals, rows, cols, ca, cb, sign = [], [], [], [], [], []
+        base = 9 * np.arange(m)[:, None] + np.arange(9)[None, :]                 # (m, 9) value index
+        for rv, cv, sg in ((self.i, self.i, 1.0), (self.j, self.j, 1.0), (self.i, self.j, -1.0),
+                           (self.j, self.i, -1.0)):
+            vals.append(base.ravel())
+            rows.append(np.repeat(rv, 9))
+            cols.append(np.repeat(cv, 9))
+            ca.append(np.tile(comp_a, m))
+            cb.append(np.tile(comp_b, m))
+            sign.append(np.full(9 * m, sg))
+        if self.H is not None and len(self.H):
+            h = len(self.H)
+            off = 9 * m
+            for p, (a, b) in enumerate(self._PAIRS):
+                idx = off + (np.arange(h)[:, None] * len(self._PAIRS) + p) * 9 + np.arange(9)[None, :]
+                for ra, rb, aa, bb in ((a, b, comp_a, comp_b),) + (((b, a, comp_b, comp_a),) if a != b else ()):
+                    vals.append(idx.ravel())
+                    rows.append(np.repeat(self.H[:, ra], 9))
+                    cols.append(np.repeat(self.H[:, rb], 9))
+                    ca.append(np.tile(aa, h))
+                    cb.append(np.tile(bb, h))
+                    sign.append(np.ones(9 * h))
+        return tuple(np.concatenate(a) for a in (vals, rows, cols, ca, cb, sign))
+
+    def _pattern(self, upper: bool):
+        """The CSR pattern of the free-dof matrix (full, or its upper triangle), its diagonal
+        positions, and the scatter matrix S (nnz x number of values) with CSR values = S @ values:
+        computed once (the COO -> CSR sort a careful user does once, not every step)."""
         key = "upper" if upper else "full"
         if key not in self._patterns:
-            a3 = np.arange(3)
-            r = self.dof[3 * rv[:, None, None] + a3[None, :, None]]
-            c = self.dof[3 * cv[:, None, None] + a3[None, None, :]]
-            r, c = np.broadcast_arrays(r, c)
+            val, rv, cv, ca, cb, sign = self._placements()
+            r = self.dof[3 * rv + ca]
+            c = self.dof[3 * cv + cb]
             keep = (r >= 0) & (c >= 0) & ((c >= r) if upper else True)
             nf = self.n_free_dofs
             lin = r[keep].astype(np.int64) * nf + c[keep]
@@ -154,17 +193,20 @@ class NumpyCloth:
             diag_pos = np.searchsorted(uniq, np.arange(nf, dtype=np.int64) * (nf + 1))
             if not np.array_equal(uniq[diag_pos], np.arange(nf, dtype=np.int64) * (nf + 1)):
                 raise ValueError("a free vertex with no element: its diagonal is not in the pattern")
-            self._patterns[key] = (keep, pos, indptr, cols, len(uniq), diag_pos)
+            n_values = 9 * len(self.i) + (9 * len(self._PAIRS) * len(self.H) if self.H is not None else 0)
+            S = scipy.sparse.csr_matrix((sign[keep], (pos, val[keep])), shape=(len(uniq), n_values))
+            S.sum_duplicates()
+            self._patterns[key] = (S, indptr, cols, diag_pos)
         return self._patterns[key]
 
-    def system_matrix(self, x, diag, upper: bool = False):
+    def system_matrix(self, x, diag, upper: bool = False, grads=None):
         """H_psd(x) + diag(diag) over the free degrees of freedom as scipy CSR (the full matrix,
-        or its upper triangle), assembled into the precomputed pattern with one ``np.bincount``."""
-        B, rv, cv = self.hessian_blocks(x)
-        keep, pos, indptr, indices, nnz, diag_pos = self._pattern(rv, cv, upper)
-        data = np.bincount(pos, weights=B[keep], minlength=nnz)
+        or its upper triangle): the per-step block values scattered into the precomputed pattern by
+        one sparse product with the scatter matrix."""
+        S, indptr, indices, diag_pos = self._pattern(upper)
+        data = S @ self.block_values(x, grads)
         data[diag_pos] += diag
-        A = scipy.sparse.csr_matrix((data, indices, indptr), shape=(self.n_free_dofs,) * 2)
+        A = scipy.sparse.csr_matrix((data, indices, indptr), shape=(self.n_free_dofs,) * 2, copy=False)
         A.has_sorted_indices = True
         return A
 
@@ -176,8 +218,9 @@ class NumpyCloth:
         """(A, b) of one Baraff-Witkin step: A = M/dt^2 + H_psd(x), b = f(x) + M g + M v/dt (free dofs)."""
         free = ~self.pinned
         m3 = np.repeat(self.mass[free], 3)
-        A = self.system_matrix(x, m3 / (dt * dt), upper)
-        b = (self.forces(x) + self.mass[:, None] * v / dt)[free].reshape(-1)
+        terms = self._hinge_terms(x) if self.H is not None and len(self.H) else None  # once for both
+        A = self.system_matrix(x, m3 / (dt * dt), upper, terms and terms[1])
+        b = (self.forces(x, terms) + self.mass[:, None] * v / dt)[free].reshape(-1)
         return A, b
 
     def apply_step(self, x, v, y, dt):

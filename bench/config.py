@@ -44,6 +44,13 @@ PROFILES = {
         "t2-f32": dict(cloth=[32, 64, 128, 256], implicit=[32, 64, 128], rod=[1000, 10000, 100000], sequence=[]),
     }),
 }
+# interleaved comparison rows (bench/interleave.py): per profile and kind of row, (seconds of timing
+# per row, fewest rounds, most rounds); a round times every contender of the row once
+ROW_BUDGETS = {
+    "smoke": {k: (0.0, 1, 1) for k in ("explicit", "direct", "iterative", "sequence")},
+    "quick": dict(explicit=(0.5, 7, 30), direct=(2.0, 5, 20), iterative=(0.0, 3, 3), sequence=(0.0, 3, 3)),
+    "full": dict(explicit=(1.5, 9, 60), direct=(8.0, 7, 30), iterative=(0.0, 3, 3), sequence=(0.0, 3, 3)),
+}
 # the scipy baseline's largest cloth: at 256^2 one baseline step takes minutes (8x the 128^2 one)
 SCIPY_MAX_SIDE = {"smoke": 16, "quick": 128, "full": 128}
 # the largest cloth each sparse peer is timed on (bench/peers/sparse.py): above it one step takes
@@ -83,6 +90,15 @@ def sizes(kind: str) -> list:
     table = PROFILES[profile()]["sizes"]
     row = table.get(config_name()) or table.get("*") or table["t2-f64"]
     return list(row[kind])
+
+
+def row_budget(kind: str) -> tuple:
+    """(seconds of timing, fewest rounds, most rounds) of an interleaved row of ``kind``
+    ("explicit", "direct", "iterative", "sequence")."""
+    table = ROW_BUDGETS[profile()]
+    if kind not in table:
+        raise ValueError(f"row budget kind must be one of {', '.join(table)} (got {kind!r})")
+    return table[kind]
 
 
 def budget() -> tuple:

@@ -1,4 +1,5 @@
-"""Timed: the explicit (symplectic Euler) cloth step, engine against the numpy baseline, and the
+"""Timed: the explicit (symplectic Euler) cloth step, engine against Numba, Warp and the numpy
+baseline (bench/peers, bench/baseline.py) interleaved in rounds (bench/interleave.py), and the
 kernels it is made of, with the force-kernel variants (parallel atomics, serialized scatter, the
 engine's CSR gather).
 
@@ -9,8 +10,9 @@ tiny cloth as a smoke test.  What each body computes is checked in bench/test_co
 import numpy as np
 import pytest
 
-from bench import config, traffic
+from bench import config, peers, traffic
 from bench.baseline import NumpyCloth
+from bench.interleave import Contender, measure_row
 from bench.timing import measure, sync
 from bench.variants import bending_variant, spring_variant
 from engine.energies.bending import gather_hinge_vectors_kernel, hinge_forces_kernel
@@ -32,55 +34,58 @@ def _info(c, bending):
                 h=c.bending.n_hinges if (bending and c.bending is not None) else 0)
 
 
-@pytest.mark.parametrize("impl", ["engine", "numpy"])
-@pytest.mark.parametrize("model", list(MODELS))
-@pytest.mark.parametrize("side", SIZES)
-def test_explicit_step(benchmark, side, model, impl):
-    """Engine and numpy baseline for the same cloth run back to back (adjacent in time, so that a
-    shared machine's load changes little between the two)."""
-    bending = MODELS[model]
-    c = config.cloth_scene(side, bending)
+def _contenders(c, bending, block):
+    """The engine, Numba, Warp (and, one step per call, numpy) stepping their own copies of the
+    bench's start state ``block`` steps per call in the engine's precision; (contenders, left out,
+    the engine's state)."""
     x0, v0 = config.cloth_start_state(c)
-    info = _info(c, bending)
-    if impl == "numpy":
+    dtype = np.dtype(float_dtype())
+    st = c.model.make_state(x0, v0)
+    step = integrator("symplectic-euler")
+
+    def engine():
+        step.step(c.model, st, DT, block)
+        sync()
+    out = [Contender("engine", engine)]
+    left = {}
+    for name in ("numba", "warp"):
+        why = peers.missing(name)
+        if why:
+            left[name] = why
+            continue
+        p = peers.explicit_peer(name, c, bending, dtype)
+        if name == "numba":
+            x, v = x0.astype(dtype), v0.astype(dtype)
+            run = (lambda p=p, x=x, v=v: p.step(x, v, DT, block))
+            info = dict(peer_threads=p.threads, peer_layer=p.layer)
+        else:
+            p.load(x0.astype(dtype), v0.astype(dtype))
+            run = (lambda p=p: p.advance(DT, block))     # CPU launches return when done
+            info = dict(peer_threads=1, peer_layer="warp cpu (serial)")
+        out.append(Contender(name, run, info=info))
+    if block == 1:
         base = NumpyCloth(c.model, c.springs, c.bending if bending else None)
         x, v = x0.copy(), v0.copy()
-        measure(benchmark, lambda: base.symplectic_euler(x, v, DT, 1), group="cloth-explicit-step", impl="numpy",
-                model=model, kernel="explicit_step", **info)
-        assert np.all(np.isfinite(x))
-        return
-    st = c.model.make_state(x0, v0)
-    step = integrator("symplectic-euler")
-
-    def run():
-        step.step(c.model, st, DT, 1)
-        sync()
-
-    measure(benchmark, run, group="cloth-explicit-step", impl="engine", model=model, kernel="explicit_step",
-            bytes=traffic.kernel_bytes("explicit_step", info["n"], info["m"], info["h"], _fb()), **info)
-    assert np.all(np.isfinite(st.numpy().x))
+        out.append(Contender("numpy", lambda: base.symplectic_euler(x, v, DT, 1)))
+    return out, left, st
 
 
+@pytest.mark.parametrize("block", [1, config.EXPLICIT_BLOCK], ids=["1-step", f"{config.EXPLICIT_BLOCK}-steps"])
 @pytest.mark.parametrize("model", list(MODELS))
 @pytest.mark.parametrize("side", SIZES)
-def test_explicit_block(benchmark, side, model):
-    """config.EXPLICIT_BLOCK steps per call, as a lesson takes them between two recorded frames: the
-    engine takes them in one launch (cloth_steps) where it can; the peers are timed over the same
-    block (test_peers_explicit.py, group "cloth-explicit-block")."""
+def test_explicit_row(benchmark, side, model, block):
+    """``block`` symplectic-Euler steps per call (one: group "cloth-explicit-step"; config.EXPLICIT_BLOCK,
+    as a lesson takes them between two recorded frames: group "cloth-explicit-block", the engine in
+    one launch), engine and peers interleaved in rounds; the first calls (compilation or cache
+    load) run before the clock."""
     bending = MODELS[model]
     c = config.cloth_scene(side, bending)
-    x0, v0 = config.cloth_start_state(c)
     info = _info(c, bending)
-    st = c.model.make_state(x0, v0)
-    step = integrator("symplectic-euler")
-    k = config.EXPLICIT_BLOCK
-
-    def run():
-        step.step(c.model, st, DT, k)
-        sync()
-
-    measure(benchmark, run, group="cloth-explicit-block", steps=k, impl="engine", model=model, kernel="explicit_step",
-            bytes=traffic.kernel_bytes("explicit_step", info["n"], info["m"], info["h"], _fb()), **info)
+    contenders, left, st = _contenders(c, bending, block)
+    row = measure_row(benchmark, contenders, group="cloth-explicit-step" if block == 1 else "cloth-explicit-block",
+                      budget="explicit", steps=block, left_out=left, model=model, kernel="explicit_step",
+                      bytes=traffic.kernel_bytes("explicit_step", info["n"], info["m"], info["h"], _fb()), **info)
+    assert set(row) == {k.impl for k in contenders}
     assert np.all(np.isfinite(st.numpy().x))
 
 

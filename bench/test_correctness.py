@@ -136,26 +136,48 @@ def test_scipy_assembly_equals_engine_psd_hessian():
     assert np.max(np.abs(H - ref)) <= 1e-10 * np.max(np.abs(ref))
 
 
-def test_precomputed_pattern_assembly_equals_a_fresh_coo_assembly():
-    """The baseline's assembly into a pattern computed once (one np.bincount per step) is the
-    COO -> CSR matrix summed afresh, on two different states (the pattern does not depend on x),
-    and its upper triangle is the triangle of the same matrix."""
-    import scipy.sparse
+def test_scatter_assembly_equals_the_engines_matrix_on_two_states():
+    """The baseline's assembly (per-step block values through a scatter matrix built once) is the
+    engine's dense PSD Hessian on two different states (the pattern does not depend on x), in full
+    and as the upper triangle PARDISO reads, and the peers' matrix-free residual product equals
+    the full matrix's product."""
+    from bench.peers import sparse as peers
     c = cloth(8, E=1e3, rho=0.1, B=1e-3)
     base = NumpyCloth(c.model, c.springs, c.bending)
+    free = np.repeat(c.model.free, 3)
+    nf = base.n_free_dofs
+    d = np.linspace(1.0, 2.0, nf)
     for seed in (1, 2):
         x = _deformed(c, seed=seed, amp=0.02)
-        B, rv, cv = base.hessian_blocks(x)
-        a3 = np.arange(3)
-        r, cc = np.broadcast_arrays(base.dof[3 * rv[:, None, None] + a3[None, :, None]],
-                                    base.dof[3 * cv[:, None, None] + a3[None, None, :]])
-        keep = (r >= 0) & (cc >= 0)
-        nf = base.n_free_dofs
-        ref = scipy.sparse.coo_matrix((B[keep], (r[keep], cc[keep])), shape=(nf, nf)).toarray()
-        assert np.max(np.abs(base.hessian_psd(x).toarray() - ref)) <= 1e-13 * np.abs(ref).max()
-        d = np.linspace(1.0, 2.0, nf)
-        U = base.system_matrix(x, d, upper=True).toarray()
-        assert np.max(np.abs(U - np.triu(ref + np.diag(d)))) <= 1e-13 * np.abs(ref).max()
+        ref = c.model.dense_hessian(vec3_ndarray(c.model.n, x), psd=True)[np.ix_(free, free)]
+        assert np.max(np.abs(base.hessian_psd(x).toarray() - ref)) <= 1e-12 * np.abs(ref).max()
+        U = base.system_matrix(x, d, upper=True)
+        assert np.max(np.abs(U.toarray() - np.triu(ref + np.diag(d)))) <= 1e-12 * np.abs(ref).max()
+        y = np.random.default_rng(seed).standard_normal(nf)
+        assert np.max(np.abs(peers.product(U, y, upper=True) - (ref + np.diag(d)) @ y)) <= \
+            1e-12 * np.abs(ref).max() * nf
+
+
+def test_pardiso_factorisation_alone_solves_the_peers_system():
+    """bench/peers/sparse.FactorOnly (the library row) solves the system the PARDISO peer solves
+    in its step: its solution is that step's displacement."""
+    from bench.peers import sparse as peers
+    reason = peers.available("pardiso")
+    if reason:
+        pytest.skip(reason)
+    c = cloth(10, E=1e3, rho=0.1, B=1e-3)
+    x0, v0 = config.cloth_start_state(c)
+    dt = 1.0 / 60.0
+    base = NumpyCloth(c.model, c.springs, c.bending)
+    f = peers.FactorOnly(base, x0, v0, dt)
+    y = f.run()
+    x, v = x0.copy(), v0.copy()
+    peers.SparsePeer("pardiso", base).step(x, v, dt)
+    dx = (x - x0)[c.model.free].reshape(-1)
+    assert np.max(np.abs(dx)) > 1e-3
+    assert np.max(np.abs(y - dx)) <= 1e-12 * np.max(np.abs(dx))
+    A, b = base.implicit_system(x0, v0, dt, upper=True)
+    assert np.linalg.norm(b - peers.product(A, y, upper=True)) <= 1e-10 * np.linalg.norm(b)
 
 
 @pytest.mark.parametrize("name", ["scipy-cg", "pyamg-cg", "pardiso", "pardiso-spsolve", "cholmod"])

@@ -6,17 +6,12 @@ its steps the engine's symplectic-Euler steps, with and without bending, in floa
 and float32 (see :func:`_f32_force_bound` for what float32 can resolve).  The peers' own packages
 are optional: without numba or warp their tests are skipped with the reason.
 
-Timed (``python -m pytest bench/test_peers_explicit.py --benchmark-enable --benchmark-only``): one
-step per call and config.EXPLICIT_BLOCK steps per call, like the engine's bodies in
-bench/test_bench_explicit.py, in the same groups and with the same info keys (impl "numba" |
-"warp"), so that a report puts them in the engine's rows.  In the
-default test run each body runs once on the smoke profile's tiny cloth.
+They are timed beside the engine, interleaved in the same rounds, in bench/test_bench_explicit.py.
 """
 import numpy as np
 import pytest
 
-from bench import config, peers, traffic
-from bench.timing import measure
+from bench import config, peers
 from engine.fields import float_dtype, vec3_ndarray
 from engine.integrators import get as integrator
 
@@ -35,12 +30,7 @@ def engine_f64():
         pytest.skip("the peers' checks compare with the engine in float64; this run has ELASTIC_FP=32")
 
 
-def _peer(name, c, bending, dtype):
-    if name == "numba":
-        from bench.peers.numba_cloth import NumbaCloth
-        return NumbaCloth(c.model, c.springs, c.bending if bending else None, dtype=dtype)
-    from bench.peers.warp_cloth import WarpCloth
-    return WarpCloth(c.model, c.springs, c.bending if bending else None, dtype=dtype)
+_peer = peers.explicit_peer
 
 
 def _engine_forces(c, x):
@@ -180,47 +170,3 @@ def test_peer_rejects_bad_input_in_one_line(peer, monkeypatch):
         monkeypatch.setenv("ELASTIC_THREADS", "zero")
         with pytest.raises(ValueError, match=r"ELASTIC_THREADS must be an integer in 1\.\.\d+ \(got 'zero'\)"):
             _peer(peer, c, True, np.float64)
-
-
-# -- timed ----------------------------------------------------------------------------------------
-
-SIZES = config.sizes("cloth")
-MODELS = {"springs+bending": True, "springs": False}
-
-
-@pytest.mark.parametrize("block", [1, config.EXPLICIT_BLOCK], ids=["1-step", f"{config.EXPLICIT_BLOCK}-steps"])
-@pytest.mark.parametrize("impl", PEERS)
-@pytest.mark.parametrize("model", list(MODELS))
-@pytest.mark.parametrize("side", SIZES)
-def test_explicit_step_peer(benchmark, side, model, impl, block):
-    """``block`` symplectic-Euler steps per call (as the engine's bodies: one step, group
-    "cloth-explicit-step"; config.EXPLICIT_BLOCK steps, group "cloth-explicit-block"), in the
-    engine's precision (ELASTIC_FP) on the bench's start state; the first call (Numba/Warp
-    compilation or cache load) runs before the clock."""
-    bending = MODELS[model]
-    c = config.cloth_scene(side, bending)
-    x0, v0 = config.cloth_start_state(c)
-    dtype = np.dtype(float_dtype())
-    info = dict(side=int(round(np.sqrt(c.model.n))), n=c.model.n, m=c.springs.m,
-                h=c.bending.n_hinges if (bending and c.bending is not None) else 0)
-    peer = _peer(impl, c, bending, dtype)
-    x, v = x0.astype(dtype), v0.astype(dtype)
-    if impl == "numba":
-        peer.step(x.copy(), v.copy(), DT, 1)   # compile or load from the cache
-
-        def run():
-            peer.step(x, v, DT, block)
-        threads, layer = peer.threads, peer.layer
-    else:
-        peer.load(x, v)
-        peer.advance(DT, 1)                    # compile or load from the cache, record the launches
-
-        def run():
-            peer.advance(DT, block)            # CPU launches return when done
-        threads, layer = 1, "warp cpu (serial)"
-    measure(benchmark, run, group="cloth-explicit-step" if block == 1 else "cloth-explicit-block", steps=block,
-            impl=impl, model=model, kernel="explicit_step",
-            bytes=traffic.kernel_bytes("explicit_step", info["n"], info["m"], info["h"], dtype.itemsize),
-            peer_threads=threads, peer_layer=layer, **info)
-    final = x if impl == "numba" else peer.numpy()[0]
-    assert np.all(np.isfinite(final))

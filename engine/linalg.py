@@ -732,6 +732,12 @@ class CholeskySolver(DirectSolver):
         return entry["solver"].solve(rhs)
 
 
+# PARDISO's settings (1-based iparm, value): user iparms, METIS nested dissection, no iterative
+# refinement inside (the caller checks and refines), pivot perturbation 1e-8, no weighted matching,
+# the default factorisation kernel, no matrix check, CSR (not transposed)
+PARDISO_IPARMS = ((1, 1), (2, 2), (8, 0), (10, 8), (13, 0), (24, 0), (27, 0), (12, 0))
+
+
 class _Pardiso:
     """One MKL PARDISO instance (through pypardiso's ctypes binding) for a fixed CSR pattern:
     real symmetric positive definite (mtype 2), nested-dissection ordering; the symbolic
@@ -743,9 +749,8 @@ class _Pardiso:
         _quiet_openmp()
         import pypardiso
         self.S = pypardiso.PyPardisoSolver(mtype=2)
-        for i, v in ((1, 1), (2, 2), (8, 0), (10, 8), (13, 0), (24, 0), (27, 0)):
-            self.S.set_iparm(i, v)  # user iparms, METIS ordering, no iterative refinement inside
-        self.S.set_iparm(12, 0)     # CSR (not transposed)
+        for i, v in PARDISO_IPARMS:
+            self.S.set_iparm(i, v)
         for name in ("MKL_Set_Num_Threads", "mkl_set_num_threads"):
             fn = getattr(self.S.libmkl, name, None)
             if fn is not None:

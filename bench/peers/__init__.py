@@ -136,90 +136,13 @@ def check_step_args(n: int, x, v, dt, n_steps):
     return dt, n_steps
 
 
-def compare_explicit(sides=(64, 128, 256), rounds: int = 5, seconds: float = 0.25, dt: float = 1e-5,
-                     numba_one_thread: bool = False):
-    """Engine, Numba and Warp on the same cloth in one process, interleaved: per round, per side and
-    model (springs+bending, springs), each implementation in turn steps its own copy of the bench's
-    start state one step per call (as the timed bodies do) for ``seconds``; returns rows
-    {side, n, model, impl, ns_per_vertex_step (median over rounds), min, spread (max/min over rounds),
-    samples}.  The engine's precision and threads are the runtime's (ELASTIC_FP, ELASTIC_THREADS);
-    the peers run in the same precision, Numba with ELASTIC_THREADS threads, Warp on one
-    (``numba_one_thread``: also Numba on one thread, impl "numba-t1")."""
-    import time
-
-    import numpy as np
-    import taichi as ti
-
-    from bench import config
-    from engine import runtime
-    from engine.fields import float_dtype
-    from engine.integrators import get as integrator
-
-    runtime.init()
-    dtype = np.dtype(float_dtype())
-    impls = ["engine"] + [name for name in PACKAGES if missing(name) is None]
-    runners = {}
-    numba_peer = None
-    for side in sides:
-        for model, bending in (("springs+bending", True), ("springs", False)):
-            c = config.cloth_scene(side, bending)
-            x0, v0 = config.cloth_start_state(c)
-            st = c.model.make_state(x0, v0)
-            sym = integrator("symplectic-euler")
-
-            def engine(st=st, c=c, sym=sym):
-                sym.step(c.model, st, dt, 1)
-                ti.sync()
-            runners[side, model, "engine"] = (c.model.n, engine)
-            if "numba" in impls:
-                from bench.peers.numba_cloth import NumbaCloth
-                p = numba_peer = NumbaCloth(c.model, c.springs, c.bending if bending else None, dtype=dtype)
-                x, v = x0.astype(dtype), v0.astype(dtype)
-                runners[side, model, "numba"] = (c.model.n, lambda p=p, x=x, v=v: p.step(x, v, dt, 1))
-                if numba_one_thread:
-                    p1 = NumbaCloth(c.model, c.springs, c.bending if bending else None, dtype=dtype, threads=1)
-                    x1, v1 = x0.astype(dtype), v0.astype(dtype)
-                    runners[side, model, "numba-t1"] = (c.model.n, lambda p=p1, x=x1, v=v1: p.step(x, v, dt, 1))
-            if "warp" in impls:
-                from bench.peers.warp_cloth import WarpCloth
-                w = WarpCloth(c.model, c.springs, c.bending if bending else None, dtype=dtype)
-                w.load(x0, v0)
-                runners[side, model, "warp"] = (c.model.n, lambda w=w: w.advance(dt, 1))
-    for _, fn in runners.values():   # compile / load every path before any clock runs
-        for _ in range(3):
-            fn()
-    samples = {key: [] for key in runners}
-    for _ in range(int(rounds)):
-        for key, (n, fn) in runners.items():
-            calls, t0 = 0, time.perf_counter()
-            while True:
-                fn()
-                calls += 1
-                t = time.perf_counter() - t0
-                if t >= seconds:
-                    break
-            samples[key].append(t / calls / n * 1e9)
-    layer = numba_peer.layer if numba_peer is not None else ""
-    rows = []
-    for (side, model, impl), s in samples.items():
-        rows.append(dict(side=side, n=runners[side, model, impl][0], model=model, impl=impl,
-                         layer=layer if impl.startswith("numba") else "",
-                         ns_per_vertex_step=float(np.median(s)), min=float(min(s)), spread=float(max(s) / min(s)),
-                         samples=s))
-    return rows
-
-
-def format_table(rows) -> str:
-    """compare_explicit's rows as a markdown table: ns per vertex per step (median; spread max/min)."""
-    impls = list(dict.fromkeys(r["impl"] for r in rows))
-    keys = list(dict.fromkeys((r["model"], r["side"]) for r in rows))
-    by = {(r["model"], r["side"], r["impl"]): r for r in rows}
-    head = "| model | side | " + " | ".join(f"{i} ns/vertex/step (spread)" for i in impls) + " | " + \
-        " | ".join(f"{i}/engine" for i in impls if i != "engine") + " |"
-    lines = [head, "|" + "---|" * (2 + 2 * len(impls) - 1)]
-    for model, side in keys:
-        cells = [f"{by[model, side, i]['ns_per_vertex_step']:.1f} ({by[model, side, i]['spread']:.2f})" for i in impls]
-        eng = by[model, side, "engine"]["ns_per_vertex_step"]
-        ratios = [f"{by[model, side, i]['ns_per_vertex_step'] / eng:.2f}" for i in impls if i != "engine"]
-        lines.append(f"| {model} | {side} | " + " | ".join(cells + ratios) + " |")
-    return "\n".join(lines)
+def explicit_peer(name: str, c, bending: bool, dtype):
+    """The explicit peer ``name`` ("numba" or "warp") for the cloth scene ``c`` (with or without its
+    bending) in ``dtype``."""
+    if name == "numba":
+        from bench.peers.numba_cloth import NumbaCloth
+        return NumbaCloth(c.model, c.springs, c.bending if bending else None, dtype=dtype)
+    if name == "warp":
+        from bench.peers.warp_cloth import WarpCloth
+        return WarpCloth(c.model, c.springs, c.bending if bending else None, dtype=dtype)
+    raise ValueError(f"unknown explicit peer {name!r}; valid: {', '.join(PACKAGES)}")

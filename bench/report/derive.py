@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from bench import traffic
+from bench.interleave import spread
 from engine.constants import SERIAL_BELOW
 
 TARGET_SIDE = 128
@@ -38,21 +39,41 @@ def _load_json(path: Path):
 
 
 def rows_from_pytest_benchmark(data: dict) -> list:
-    """One flat dict per benchmark: extra_info + timing statistics (seconds)."""
+    """One flat dict per benchmark: extra_info + timing statistics (seconds).  An interleaved row
+    (bench/interleave.py) becomes one dict per contender, with its per-round seconds
+    (``round_s``) and the row's name (``row_id``), so that ratios can be taken round by round."""
     rows = []
     for b in data.get("benchmarks", []):
         ei = dict(b.get("extra_info", {}))
+        inter = ei.pop("interleaved", None)
+        if inter is not None:
+            for impl, c in inter.items():
+                rs = [float(t) for t in c.get("round_s", [])]
+                if not rs:
+                    continue
+                row = dict(ei)
+                row.update(c.get("info", {}))
+                q1, q3 = np.percentile(rs, [25, 75])
+                row.update(group=b.get("group"), name=f"{b.get('name')}[{impl}]", impl=impl, row_id=b.get("name"),
+                           round_s=rs, median_s=float(np.median(rs)), iqr_s=float(q3 - q1), min_s=min(rs),
+                           rounds_done=len(rs))
+                rows.append(_per_step(row))
+            continue
         st = b.get("stats", {})
         row = dict(ei)
         row.update(group=b.get("group"), name=b.get("name"), median_s=st.get("median"), iqr_s=st.get("iqr"),
                    min_s=st.get("min"), rounds_done=st.get("rounds"))
-        steps = max(int(row.get("steps_per_call", 1) or 1), 1)
-        if row["median_s"] is not None:
-            row["per_step_s"] = row["median_s"] / steps
-            if row.get("n"):
-                row["ns_per_vertex"] = row["per_step_s"] / row["n"] * 1e9
-        rows.append(row)
+        rows.append(_per_step(row))
     return rows
+
+
+def _per_step(row: dict) -> dict:
+    steps = max(int(row.get("steps_per_call", 1) or 1), 1)
+    if row["median_s"] is not None:
+        row["per_step_s"] = row["median_s"] / steps
+        if row.get("n"):
+            row["ns_per_vertex"] = row["per_step_s"] / row["n"] * 1e9
+    return row
 
 
 def bandwidths(rows: list) -> dict:
@@ -212,6 +233,13 @@ def peer_ratios(rows: list) -> list:
                 for tol in tols:
                     rs = _implicit_rows(rows, cfg, side, tol, group)
                     out.append(_ratio_entry(kind, cfg, side, f"tol {tol:.0e}", rs, None))
+        # the engine's whole step against PARDISO's factorisation + solve of the same matrix alone
+        for side in sorted({r["side"] for r in rows if r.get("config") == cfg and r.get("library_only")}):
+            rs = [r for r in rows if r.get("config") == cfg and r.get("group") == "cloth-implicit-step"
+                  and r.get("side") == side and r.get("impl") in ("engine-pardiso", "peer-pardiso-factor")
+                  and r.get("per_step_s")]
+            out.append(_ratio_entry("library", cfg, side, "PARDISO factorisation + solve alone", rs,
+                                    ("peer-pardiso-factor",)))
     return [e for e in out if e]
 
 
@@ -222,20 +250,30 @@ def _explicit_what(model: str, rs: list) -> str:
 
 
 def _ratio_entry(kind, cfg, side, what, rs, peer_names):
+    """The engine's fastest way against the fastest peer of one comparison.  When both were timed
+    in the same interleaved row, the ratio is the median of the per-round ratios (engine / peer in
+    the same round) and ``spread`` their range (bench/interleave.spread); ``resolved`` is False
+    when that range contains 1 (the row cannot tell which is faster)."""
     eng = [r for r in rs if _is_engine(r.get("impl", ""))]
     if peer_names is None:
-        peer = [r for r in rs if not _is_engine(r.get("impl", ""))]
+        peer = [r for r in rs if not _is_engine(r.get("impl", "")) and not r.get("library_only")]
     else:
         peer = [r for r in rs if r.get("impl") in peer_names]
     if not eng:
         return None
     e = min(eng, key=lambda r: r["per_step_s"])
     p = min(peer, key=lambda r: r["per_step_s"]) if peer else None
-    return dict(kind=kind, config=cfg, side=side, what=what, engine=e.get("impl"), engine_solver=e.get("solver"),
-                engine_s=e["per_step_s"], peer=p and p.get("impl"), peer_s=p and p["per_step_s"],
-                ratio=(e["per_step_s"] / p["per_step_s"]) if p else None,
-                floor_s=e.get("floor_s"), bw_fraction=e.get("bw_fraction"),
-                all={r.get("impl"): r["per_step_s"] for r in rs})
+    out = dict(kind=kind, config=cfg, side=side, what=what, engine=e.get("impl"), engine_solver=e.get("solver"),
+               engine_s=e["per_step_s"], peer=p and p.get("impl"), peer_s=p and p["per_step_s"],
+               ratio=(e["per_step_s"] / p["per_step_s"]) if p else None, spread=None, rounds=None,
+               interleaved=False, resolved=None,
+               floor_s=e.get("floor_s"), bw_fraction=e.get("bw_fraction"),
+               all={r.get("impl"): r["per_step_s"] for r in rs})
+    if p and e.get("row_id") and e.get("row_id") == p.get("row_id") and e.get("round_s") and p.get("round_s"):
+        per_round = [a / b for a, b in zip(e["round_s"], p["round_s"])]
+        med, lo, hi = spread(per_round)
+        out.update(ratio=med, spread=(lo, hi), rounds=len(per_round), interleaved=True, resolved=not lo <= 1.0 <= hi)
+    return out
 
 
 def targets(doc: dict) -> list:

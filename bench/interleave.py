@@ -1,0 +1,123 @@
+"""Every contender of a comparison row timed in the same rounds, one after the other, in one process.
+
+A ratio of two medians taken minutes apart measures the machine as much as the code: on a shared
+2-core machine the load, the CPU frequency and the state of other thread pools drift between
+benchmarks.  So each row of the report (one cloth size, one model or tolerance) is one
+pytest-benchmark test whose timed body is a *round*: every contender once (a batch of calls for a
+fast one), in an order that rotates from round to round so that no contender always runs first or
+right after the same neighbour.  The per-round seconds of each contender are kept in
+``extra_info["interleaved"]``; the report (bench/report/derive.py) takes each contender's median
+over the rounds, and each ratio *per round* (engine / peer in the same round), giving the median
+ratio and its spread.
+
+A contender is a :class:`Contender`: ``run()`` does ``steps`` steps and synchronises; ``setup()``
+(untimed, before every call) resets its state where a call must start from the same state;
+``after()`` (untimed, after every timed call) may return a dict of figures of that call (iterations,
+the split of a step), whose per-key medians over the timed calls go into the contender's info.
+"""
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from bench import config
+
+BATCH_S = 5e-3   # a contender without a setup repeats its call until a batch takes about this long
+
+
+@dataclass
+class Contender:
+    impl: str
+    run: Callable[[], object]
+    setup: Callable[[], object] | None = None
+    after: Callable[[], dict | None] | None = None
+    info: dict = field(default_factory=dict)
+
+
+def spread(values, lo_q: float = 10.0, hi_q: float = 90.0) -> tuple:
+    """(median, low, high) of per-round figures: the 10th and 90th percentiles from 10 rounds on,
+    the smallest and largest value below that."""
+    v = np.asarray(values, dtype=float)
+    if len(v) >= 10:
+        lo, hi = np.percentile(v, [lo_q, hi_q])
+    else:
+        lo, hi = v.min(), v.max()
+    return float(np.median(v)), float(lo), float(hi)
+
+
+def _call(c: Contender, calls: int) -> float:
+    """Seconds of one call (a batch of ``calls`` calls when c has no setup)."""
+    if c.setup is not None:
+        c.setup()
+        t0 = time.perf_counter()
+        c.run()
+        return time.perf_counter() - t0
+    t0 = time.perf_counter()
+    for _ in range(calls):
+        c.run()
+    return (time.perf_counter() - t0) / calls
+
+
+def measure_row(benchmark, contenders: list, *, group: str, budget: str, steps: int = 1, warmup: int = 2,
+                min_rounds: int | None = None, budget_s: float | None = None, left_out: dict | None = None,
+                **info):
+    """Time ``contenders`` interleaved in rounds with ``benchmark.pedantic`` (one round = one timed
+    body).  ``warmup`` untimed calls of each first (compilation, caches, a solver's analysis), then
+    one probe call each chooses the batch sizes and the number of rounds: the row's time budget
+    (``config.row_budget(budget)``) divided by a round's time, at least ``min_rounds``.  ``left_out``: contenders
+    of this row that were not timed, with the reason.  Extra keyword arguments go to
+    ``benchmark.extra_info`` (with ``steps_per_call``, ``config``, ``profile``)."""
+    if not contenders:
+        raise ValueError("measure_row needs at least one contender")
+    seconds, min_r, max_r = config.row_budget(budget)
+    if budget_s is not None:
+        seconds = budget_s
+    if min_rounds is not None:
+        min_r = min_rounds
+    benchmark.group = group
+    benchmark.extra_info.update(info, steps_per_call=int(steps), config=config.config_name(),
+                                profile=config.profile(), left_out=dict(left_out or {}))
+    smoke = seconds <= 0.0
+    for c in contenders:
+        for _ in range(0 if smoke else warmup):
+            _call(c, 1)
+            if c.after:
+                c.after()
+    if smoke:
+        calls = {c.impl: 1 for c in contenders}
+        rounds = 1
+    else:
+        probe = {c.impl: _call(c, 1) for c in contenders}
+        for c in contenders:
+            if c.after:
+                c.after()
+        calls = {c.impl: 1 if c.setup is not None else max(1, math.ceil(BATCH_S / max(probe[c.impl], 1e-7)))
+                 for c in contenders}
+        round_s = sum(probe[k] * calls[k] for k in probe)
+        rounds = int(min(max_r, max(min_r, seconds / max(round_s, 1e-9))))
+    times = {c.impl: [] for c in contenders}
+    figures = {c.impl: [] for c in contenders}
+    counter = [0]
+
+    def one_round():
+        k = counter[0]
+        counter[0] += 1
+        order = contenders[k % len(contenders):] + contenders[:k % len(contenders)]
+        for c in order:
+            times[c.impl].append(_call(c, calls[c.impl]))
+            if c.after:
+                figures[c.impl].append(c.after() or {})
+
+    benchmark.pedantic(one_round, rounds=rounds, iterations=1, warmup_rounds=0)
+    out = {}
+    for c in contenders:
+        d = dict(c.info)
+        for key in sorted({k for f in figures[c.impl] for k in f}):
+            vals = [f[key] for f in figures[c.impl] if key in f and f[key] is not None]
+            if vals:
+                d[key] = float(np.median(vals)) if isinstance(vals[0], float) else int(np.median(vals))
+        out[c.impl] = dict(round_s=times[c.impl], calls_per_round=calls[c.impl], info=d)
+    benchmark.extra_info.update(interleaved=out, rounds=rounds)
+    return out
