@@ -276,6 +276,18 @@ def _ratio_entry(kind, cfg, side, what, rs, peer_names):
     return out
 
 
+def ratio_text(p) -> str:
+    """"0.78 (0.74-0.83, 9 rounds)" for an interleaved row; "not resolved" when its spread
+    contains 1; "(not interleaved)" for a ratio of medians taken at different times."""
+    if p.get("ratio") is None:
+        return "-"
+    if not p.get("interleaved"):
+        return f"{p['ratio']:.2f} (not interleaved)"
+    lo, hi = p["spread"]
+    text = f"{p['ratio']:.2f} ({lo:.2f}-{hi:.2f}, {p['rounds']} rounds)"
+    return text if p.get("resolved") else text + ", not resolved"
+
+
 def targets(doc: dict) -> list:
     rows = doc["rows"]
     ratios = doc.get("peer_ratios") or peer_ratios(rows)
@@ -287,12 +299,15 @@ def targets(doc: dict) -> list:
         if not picks:
             t.update(measured="not measured (needs the peers: pip install -e '.[peers]')", met=None)
             return t
-        worst = max(picks, key=lambda p: p["ratio"])
-        t.update(measured="; ".join(f"{p['side']}^2 {p['what']}: {p['ratio']:.2f}x ({_short(p['engine'])} "
+        # met only when every row's whole spread lies at or under the goal
+        upper = lambda p: p["spread"][1] if p.get("spread") else p["ratio"]  # noqa: E731
+        worst = max(picks, key=upper)
+        t.update(measured="; ".join(f"{p['side']}^2 {p['what']}: {ratio_text(p)} ({_short(p['engine'])} "
                                     f"{p['engine_s'] * 1e3:.3g} ms vs {_short(p['peer'])} {p['peer_s'] * 1e3:.3g} ms)"
                                     for p in picks),
-                 value=worst["ratio"], met=worst["ratio"] <= goal,
-                 by=f"worst {worst['ratio']:.2f}x at {worst['side']}^2 {worst['what']}" if worst["ratio"] > goal else "")
+                 value=worst["ratio"], met=upper(worst) <= goal,
+                 by=f"worst {worst['ratio']:.2f}x (spread up to {upper(worst):.2f}) at {worst['side']}^2 "
+                    f"{worst['what']}" if upper(worst) > goal else "")
         return t
 
     pick = lambda kind, cfg, side=None, what=None: [p for p in ratios if p["kind"] == kind and p["config"] == cfg
@@ -409,23 +424,29 @@ def _why_implicit(rows, ratios) -> list:
             continue
         parts = ", ".join(f"{_short(k)} {v * 1e3:.0f}" for k, v in sorted(p["all"].items(), key=lambda kv: kv[1]))
         why.append(f"{p['side']}^2, ms per step: {parts}.")
-    for side in (128, 256):
+    sides = sorted({r["side"] for r in rows if r.get("config") == "t2-f64" and r.get("impl") == "engine-pardiso"
+                    and r.get("group") == "cloth-implicit-step"})
+    for side in sides:
         e = find(rows, config="t2-f64", group="cloth-implicit-step", impl="engine-pardiso", side=side)
         pp = find(rows, config="t2-f64", group="cloth-implicit-step", impl="peer-pardiso", side=side)
-        parts = e and sum(e.get(k) or 0.0 for k in ("assembly_s", "factorization_s", "solve_s"))
-        if e and e.get("factorization_s") is not None and parts > 1.05 * e["per_step_s"]:
-            why.append(f"{side}^2 engine pardiso: the assembly / factorisation / solve split this run recorded "
-                       f"({parts * 1e3:.0f} ms in all) counts its warm-up calls too (the analysis, compilation) and "
-                       f"exceeds the timed step ({e['per_step_s'] * 1e3:.0f} ms): not shown.")
-        elif e and e.get("factorization_s") is not None:
-            line = (f"{side}^2 engine pardiso: assembly {e['assembly_s'] * 1e3:.0f} ms (Taichi gather into the "
-                    f"fixed pattern) + numeric factorisation {e['factorization_s'] * 1e3:.0f} + solve and residual "
-                    f"check {e['solve_s'] * 1e3:.0f}")
-            if pp and pp.get("setup_s") is not None:
-                line += (f"; the same PARDISO driven from numpy: assembly {pp['assembly_s'] * 1e3:.0f} + "
-                         f"factorisation {pp['setup_s'] * 1e3:.0f} + solve {pp['solve_s'] * 1e3:.0f}")
-            why.append(line + ". Both factorise with the same library, so the engine's margin is the assembly "
-                              "and what it does not repeat (the pattern and the symbolic analysis once per model).")
+        lib = find(rows, config="t2-f64", group="cloth-implicit-step", impl="peer-pardiso-factor", side=side)
+        if not (e and e.get("factorization_s") is not None):
+            continue
+        line = (f"{side}^2, split of the timed steps (medians): engine PARDISO {e['per_step_s'] * 1e3:.1f} ms = assembly "
+                f"{e['assembly_s'] * 1e3:.1f} (Taichi gather into the fixed pattern) + numeric factorisation "
+                f"{e['factorization_s'] * 1e3:.1f} + back-substitution and residual check {e['solve_s'] * 1e3:.1f} "
+                f"+ the rest of the step {max(e['per_step_s'] - e['assembly_s'] - e['factorization_s'] - e['solve_s'], 0) * 1e3:.1f}")
+        if pp and pp.get("setup_s") is not None:
+            line += (f"; numpy + PARDISO {pp['per_step_s'] * 1e3:.1f} ms = assembly {pp['assembly_s'] * 1e3:.1f} + "
+                     f"factorisation {pp['setup_s'] * 1e3:.1f} + solve {pp['solve_s'] * 1e3:.1f} + the rest (residual "
+                     f"check, update) {max(pp['per_step_s'] - pp['assembly_s'] - pp['setup_s'] - pp['solve_s'], 0) * 1e3:.1f}")
+        if lib:
+            line += f"; PARDISO's factorisation + solve alone {lib['per_step_s'] * 1e3:.1f} ms"
+        why.append(line + ".")
+    if sides:
+        why.append("Both factorise with the same library and settings, so the engine's margin is its assembly (a "
+                   "parallel Taichi gather into a pattern fixed per model, against numpy's single-threaded scatter) "
+                   "and a residual check without a second matrix.")
     return why
 
 

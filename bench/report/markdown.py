@@ -4,7 +4,7 @@ the bandwidth floor, what was left out, and how it was measured."""
 import math
 
 from bench import traffic
-from bench.report.derive import ALL_KERNELS, CONFIGS, STARTUP_RUNS, STEP_KERNELS, TARGET_SIDE, find
+from bench.report.derive import ALL_KERNELS, CONFIGS, STARTUP_RUNS, STEP_KERNELS, TARGET_SIDE, find, ratio_text
 from engine.constants import CFL_SAFETY
 
 
@@ -212,29 +212,34 @@ def _kernels_md(rows) -> list:
     return L
 
 
-IMPLICIT_IMPLS = ("engine-pardiso", "engine-cholesky", "engine-pcg", "peer-pardiso", "peer-pardiso-spsolve",
-                  "peer-cholmod", "peer-pyamg-cg", "scipy")
+IMPLICIT_IMPLS = ("engine-pardiso", "engine-cholesky", "engine-pcg", "peer-pardiso", "peer-pardiso-factor",
+                  "peer-pardiso-spsolve", "peer-cholmod", "peer-pyamg-cg", "scipy")
 
 
 def _peers_md(doc) -> list:
     ratios = doc.get("peer_ratios") or []
     L = ["## Against the peers", "",
-         "Per row: the engine's fastest way and the fastest contender measured in the same process and rounds "
-         "(explicit: Numba `prange` and Warp CPU kernels, bench/peers; implicit: scipy CG, pyamg, PARDISO, "
-         "CHOLMOD driven from numpy with a precomputed pattern, bench/peers/sparse.py), each checked to compute "
-         "the same forces / solve the same system (bench/test_correctness.py, bench/test_peers_explicit.py). "
-         "ratio = engine time / peer time (below 1: the engine is faster); floor = the engine row's bandwidth "
-         "floor time (bench/traffic.py), where a traffic model exists.", ""]
+         "Per row: the engine's fastest way and the fastest contender, all of the row's contenders timed "
+         "interleaved in the same rounds in one process (bench/interleave.py: every round runs each once, in a "
+         "rotating order) (explicit: Numba `prange` and Warp CPU kernels, bench/peers; implicit: scipy CG, pyamg, "
+         "PARDISO, CHOLMOD driven from numpy with a scatter map built once, bench/peers/sparse.py), each checked to "
+         "compute the same forces / solve the same system (bench/test_correctness.py, "
+         "bench/test_peers_explicit.py). ratio = engine time / peer time in the same round (below 1: the engine "
+         "is faster), the median over the rounds, with the spread of the per-round ratios (10th-90th percentile "
+         "from 10 rounds on, else smallest-largest); a row whose spread contains 1 is marked not resolved. "
+         "The *library* rows set the engine's whole step against PARDISO's numeric factorisation + solve of the "
+         "same matrix alone (analysis once, no assembly, no check): what the engine adds around the library. "
+         "floor = the engine row's bandwidth floor time (bench/traffic.py), where a traffic model exists.", ""]
     if not ratios:
         return L + ["Not measured.", ""]
     tr = []
     for p in ratios:
         tr.append((p["kind"], p["config"], f"{p['side']}^2", p["what"], _short(p["engine"]),
                    _fmt(p["engine_s"] * 1e3, ".3g"), _short(p["peer"]) if p["peer"] else "-",
-                   _fmt(p["peer_s"] and p["peer_s"] * 1e3, ".3g"), _fmt(p["ratio"], ".2f"),
+                   _fmt(p["peer_s"] and p["peer_s"] * 1e3, ".3g"), ratio_text(p),
                    _fmt(p.get("floor_s") and p["floor_s"] * 1e3, ".3g")))
     return L + _table(["step", "config", "cloth", "model / tol", "engine", "engine ms", "fastest peer", "peer ms",
-                       "ratio", "floor ms"], tr)
+                       "ratio (spread, rounds)", "floor ms"], tr)
 
 
 def _short(impl) -> str:
@@ -247,7 +252,10 @@ def _implicit_md(rows) -> list:
          "assembly + set-up (factorisation, multigrid hierarchy, preconditioner) + solve, ms. Engine: PCG with 3x3 "
          "block-Jacobi, Eigen LL^T, MKL PARDISO; peers: numpy assembly into a precomputed pattern, then scipy CG "
          "(Jacobi), pyamg smoothed aggregation + CG, PARDISO (analysis once; spsolve: every call), CHOLMOD "
-         "(cholespy). Iterative solvers to the relative residual shown; direct ones reach ~1e-13 (one row).", ""]
+         "(cholespy: analysis every step, it cannot refactorise); pardiso-factor: PARDISO's factorisation + solve "
+         "of the same matrix alone (no assembly, no check). Iterative solvers to the relative residual shown; "
+         "direct ones reach ~1e-13 (one row). The direct contenders of a size are one interleaved row, the "
+         "iterative ones of a size and tolerance another; left out of a row: said below the table.", ""]
 
     def table_rows(cfg, sides):
         tr = []
@@ -271,6 +279,15 @@ def _implicit_md(rows) -> list:
         L += _table(["cloth", "solver", "ms/step"], [(f"{r['side']}^2", _short(r["impl"]),
                                                      _fmt(r["per_step_s"] * 1e3, ".1f"))
                                                     for r in sorted(seq, key=lambda r: (r["side"], r["per_step_s"]))])
+    left = {}
+    for r in rows:
+        if r.get("group", "").startswith("cloth-implicit") and r.get("config") == "t2-f64":
+            for impl, why in (r.get("left_out") or {}).items():
+                left.setdefault((impl, why), set()).add(r.get("side"))
+    if left:
+        L += ["Left out of the implicit rows (t2-f64): " + "; ".join(
+            f"{_short(impl)} at {', '.join(f'{s}^2' for s in sorted(sides))}: {why}"
+            for (impl, why), sides in sorted(left.items(), key=str)) + ".", ""]
     return L
 
 
