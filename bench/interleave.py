@@ -25,6 +25,11 @@ import numpy as np
 from bench import config
 
 BATCH_S = 5e-3   # a contender without a setup repeats its call until a batch takes about this long
+# an untimed pause before each contender's turn: on two cores a thread pool that spins after its
+# work (OpenMP's default wait policy, MKL, OpenBLAS) takes a core from whatever runs next, and
+# without the pause the contender after Numba paid for Numba's spinning (measured: the engine's
+# 128^2 springs step 0.19-0.98 ms right after Numba against 0.25-0.36 with a 10 ms pause)
+GAP_S = 0.01
 
 
 @dataclass
@@ -47,13 +52,16 @@ def spread(values, lo_q: float = 10.0, hi_q: float = 90.0) -> tuple:
     return float(np.median(v)), float(lo), float(hi)
 
 
-def _call(c: Contender, calls: int) -> float:
-    """Seconds of one call (a batch of ``calls`` calls when c has no setup)."""
+def _call(c: Contender, calls: int, warm: bool = False) -> float:
+    """Seconds of one call (a batch of ``calls`` calls when c has no setup, after one untimed call
+    when ``warm``: the contender's threads are awake when its clock starts, as in a loop)."""
     if c.setup is not None:
         c.setup()
         t0 = time.perf_counter()
         c.run()
         return time.perf_counter() - t0
+    if warm:
+        c.run()
     t0 = time.perf_counter()
     for _ in range(calls):
         c.run()
@@ -71,6 +79,7 @@ def measure_row(benchmark, contenders: list, *, group: str, budget: str, steps: 
     ``benchmark.extra_info`` (with ``steps_per_call``, ``config``, ``profile``)."""
     if not contenders:
         raise ValueError("measure_row needs at least one contender")
+    gap = 0.0 if config.profile() == "smoke" else GAP_S
     seconds, min_r, max_r = config.row_budget(budget)
     if budget_s is not None:
         seconds = budget_s
@@ -79,7 +88,7 @@ def measure_row(benchmark, contenders: list, *, group: str, budget: str, steps: 
     benchmark.group = group
     benchmark.extra_info.update(info, steps_per_call=int(steps), config=config.config_name(),
                                 profile=config.profile(), left_out=dict(left_out or {}))
-    smoke = seconds <= 0.0
+    smoke = config.profile() == "smoke"
     for c in contenders:
         for _ in range(0 if smoke else warmup):
             _call(c, 1)
@@ -106,7 +115,8 @@ def measure_row(benchmark, contenders: list, *, group: str, budget: str, steps: 
         counter[0] += 1
         order = contenders[k % len(contenders):] + contenders[:k % len(contenders)]
         for c in order:
-            times[c.impl].append(_call(c, calls[c.impl]))
+            time.sleep(gap)   # the last contender's thread pools stop spinning before this one starts
+            times[c.impl].append(_call(c, calls[c.impl], warm=True))
             if c.after:
                 figures[c.impl].append(c.after() or {})
 
