@@ -212,6 +212,15 @@ def main(argv=None) -> int:
         for name, c in s["crossover"].items():
             where = f"E ~ {c['E']:.3g} N/m ({c['note']})" if c.get("E") else c.get("note")
             _log(f"crossover {side}^2, implicit dt {name}: {where}")
+    ref_json = report.REFERENCE_DIR / "report.json"
+    if ref_json.exists():   # an outside rerun checks itself against the committed reference
+        try:
+            lines, _ = report.against_text(doc, json.loads(ref_json.read_text()), "the reference report")
+            _log("")
+            for line in lines:
+                _log(line)
+        except (OSError, ValueError, KeyError) as exc:
+            _log(f"(could not compare with the reference report: {exc})")
     _log(f"wall time {run['wall_s']:.0f} s; report {paths['md']}" + (f" (and {paths['latest_md']})"
                                                                        if "latest_md" in paths else ""))
     if run["errors"]:

@@ -51,12 +51,6 @@ ROW_BUDGETS = {
     "quick": dict(explicit=(0.5, 7, 30), direct=(2.0, 5, 20), iterative=(0.0, 3, 3), sequence=(0.0, 3, 3)),
     "full": dict(explicit=(1.5, 9, 60), direct=(8.0, 7, 30), iterative=(0.0, 3, 3), sequence=(0.0, 3, 3)),
 }
-# the scipy baseline's largest cloth: at 256^2 one baseline step takes minutes (8x the 128^2 one)
-SCIPY_MAX_SIDE = {"smoke": 16, "quick": 128, "full": 128}
-# the largest cloth each sparse peer is timed on (bench/peers/sparse.py): above it one step takes
-# tens of seconds (the iterative ones need ~side iterations; cholespy's CHOLMOD is simplicial)
-PEER_MAX_SIDE = {p: {"scipy-cg": SCIPY_MAX_SIDE[p], "cholmod": min(SCIPY_MAX_SIDE[p], 128)}
-                 for p in SCIPY_MAX_SIDE}
 
 
 def config_name() -> str:

@@ -53,15 +53,18 @@ def spread(values, lo_q: float = 10.0, hi_q: float = 90.0) -> tuple:
 
 
 def _call(c: Contender, calls: int, warm: bool = False) -> float:
-    """Seconds of one call (a batch of ``calls`` calls when c has no setup, after one untimed call
-    when ``warm``: the contender's threads are awake when its clock starts, as in a loop)."""
+    """Seconds of one call (a batch of ``calls`` calls when c has no setup), after one untimed call
+    when ``warm`` (with its own setup before each): the contender's threads are awake and its data
+    in cache when its clock starts, as in a loop of steps."""
+    if warm:
+        if c.setup is not None:
+            c.setup()
+        c.run()
     if c.setup is not None:
         c.setup()
         t0 = time.perf_counter()
         c.run()
         return time.perf_counter() - t0
-    if warm:
-        c.run()
     t0 = time.perf_counter()
     for _ in range(calls):
         c.run()
@@ -70,11 +73,12 @@ def _call(c: Contender, calls: int, warm: bool = False) -> float:
 
 def measure_row(benchmark, contenders: list, *, group: str, budget: str, steps: int = 1, warmup: int = 2,
                 min_rounds: int | None = None, budget_s: float | None = None, left_out: dict | None = None,
-                **info):
+                warm: bool = True, **info):
     """Time ``contenders`` interleaved in rounds with ``benchmark.pedantic`` (one round = one timed
     body).  ``warmup`` untimed calls of each first (compilation, caches, a solver's analysis), then
     one probe call each chooses the batch sizes and the number of rounds: the row's time budget
-    (``config.row_budget(budget)``) divided by a round's time, at least ``min_rounds``.  ``left_out``: contenders
+    (``config.row_budget(budget)``) divided by a round's time, at least ``min_rounds``.  In a round,
+    each contender's turn starts with an untimed pause (GAP_S) and, with ``warm``, one untimed call.  ``left_out``: contenders
     of this row that were not timed, with the reason.  Extra keyword arguments go to
     ``benchmark.extra_info`` (with ``steps_per_call``, ``config``, ``profile``)."""
     if not contenders:
@@ -104,7 +108,7 @@ def measure_row(benchmark, contenders: list, *, group: str, budget: str, steps: 
                 c.after()
         calls = {c.impl: 1 if c.setup is not None else max(1, math.ceil(BATCH_S / max(probe[c.impl], 1e-7)))
                  for c in contenders}
-        round_s = sum(probe[k] * calls[k] for k in probe)
+        round_s = sum(probe[k] * (calls[k] + (1 if warm else 0)) + GAP_S for k in probe)
         rounds = int(min(max_r, max(min_r, seconds / max(round_s, 1e-9))))
     times = {c.impl: [] for c in contenders}
     figures = {c.impl: [] for c in contenders}
@@ -116,7 +120,7 @@ def measure_row(benchmark, contenders: list, *, group: str, budget: str, steps: 
         order = contenders[k % len(contenders):] + contenders[:k % len(contenders)]
         for c in order:
             time.sleep(gap)   # the last contender's thread pools stop spinning before this one starts
-            times[c.impl].append(_call(c, calls[c.impl], warm=True))
+            times[c.impl].append(_call(c, calls[c.impl], warm=warm))
             if c.after:
                 figures[c.impl].append(c.after() or {})
 

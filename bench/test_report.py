@@ -196,3 +196,24 @@ def test_interleaved_rows_give_per_round_ratios(tmp_path):
     assert lib["peer"] == "peer-pardiso-factor" and lib["ratio"] == pytest.approx(2.0)
     md = report.markdown(doc, "x-")
     assert "not resolved" in md and "PARDISO factorisation + solve alone" in md
+
+
+def test_a_rerun_is_checked_against_the_reference_spread(tmp_path):
+    """report.agreement / against_text: a rerun's ratio inside the reference's spread passes, one
+    outside is named; rows without a spread are not judged."""
+    ref = dict(peer_ratios=[
+        dict(kind="implicit", config="t2-f64", side=128, what="tol 1e-05", ratio=0.8, spread=(0.7, 0.9)),
+        dict(kind="explicit", config="t2-f64", side=64, what="springs", ratio=1.1, spread=(1.05, 1.2)),
+        dict(kind="sequence", config="t2-f64", side=64, what="tol 1e-05", ratio=0.5, spread=None)])
+    run = dict(peer_ratios=[
+        dict(kind="implicit", config="t2-f64", side=128, what="tol 1e-05", ratio=0.85, spread=(0.8, 0.9)),
+        dict(kind="explicit", config="t2-f64", side=64, what="springs", ratio=0.9, spread=(0.85, 0.95)),
+        dict(kind="sequence", config="t2-f64", side=64, what="tol 1e-05", ratio=0.6, spread=None),
+        dict(kind="explicit", config="t2-f64", side=256, what="springs", ratio=0.9, spread=None)])
+    rows = {a["kind"]: a for a in report.agreement(run, ref)}
+    assert set(rows) == {"implicit", "explicit", "sequence"}
+    assert rows["implicit"]["inside"] is True and rows["explicit"]["inside"] is False
+    assert rows["sequence"]["inside"] is None
+    lines, outside = report.against_text(run, ref, "ref")
+    assert outside == 1 and "1 of 2 ratios within the reference's spread" in lines[-1]
+    assert any("OUTSIDE" in line and "explicit" in line for line in lines)

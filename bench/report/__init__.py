@@ -19,13 +19,13 @@ import shutil
 from pathlib import Path
 
 from bench.report.derive import (ALL_KERNELS, CONFIGS, STARTUP_RUNS, STEP_KERNELS, TARGET_FLOOR_FACTOR,
-                                 TARGET_SIDE, bandwidths, build, derive_floors, find, peer_ratios,
+                                 TARGET_SIDE, agreement, bandwidths, build, derive_floors, find, peer_ratios,
                                  rows_from_pytest_benchmark, scaling_exponents, targets)
 from bench.report.markdown import markdown
 from bench.report.plots import plot_cost_vs_E, plot_cost_vs_N
 
 __all__ = ["ALL_KERNELS", "CONFIGS", "STARTUP_RUNS", "STEP_KERNELS", "TARGET_FLOOR_FACTOR",
-           "TARGET_SIDE", "bandwidths", "build", "derive_floors", "find", "main", "peer_ratios",
+           "TARGET_SIDE", "against_text", "agreement", "bandwidths", "build", "derive_floors", "find", "main", "peer_ratios",
            "markdown", "plot_cost_vs_E", "plot_cost_vs_N", "rows_from_pytest_benchmark", "scaling_exponents",
            "targets", "write"]
 
@@ -63,6 +63,27 @@ def write(doc: dict, out_dir, stem: str, latest: bool = True) -> dict:
     return paths
 
 
+def against_text(doc: dict, ref: dict, ref_name: str) -> tuple:
+    """(lines, number of rows outside the reference's spread): each comparison row of ``doc``
+    beside the same row of the reference run ``ref``."""
+    rows = agreement(doc, ref)
+    if not rows:
+        return [f"no comparison row in common with {ref_name}"], 0
+    lines = [f"ratios of this run against {ref_name} (engine / fastest peer; inside = within the reference's "
+             f"spread):"]
+    outside = 0
+    for a in rows:
+        sp = a["ref_spread"]
+        verdict = "no spread" if a["inside"] is None else ("inside" if a["inside"] else "OUTSIDE")
+        outside += a["inside"] is False
+        lines.append(f"  {a['kind']:<8} {a['config']} {a['side']:>3}^2 {a['what']:<40} {a['ratio']:.2f}  "
+                     f"reference {a['ref_ratio']:.2f}" + (f" ({sp[0]:.2f}-{sp[1]:.2f})" if sp else "")
+                     + f"  {verdict}")
+    n_sp = sum(a["inside"] is not None for a in rows)
+    lines.append(f"{n_sp - outside} of {n_sp} ratios within the reference's spread")
+    return lines, outside
+
+
 def main(argv=None) -> int:
     """``python -m bench.report RAW_DIR [--out DIR]``: re-render the report of a run from its raw
     directory (bench/results/raw/<timestamp>)."""
@@ -71,6 +92,9 @@ def main(argv=None) -> int:
     ap.add_argument("raw", help="a raw directory written by python -m bench")
     ap.add_argument("--out", help="output directory (default: two levels above RAW_DIR, i.e. bench/results)")
     ap.add_argument("--no-latest", action="store_true", help="do not overwrite the latest.* copies")
+    ap.add_argument("--against", metavar="JSON",
+                    help="also compare this run's ratios with another run's document (e.g. "
+                         "bench/reference/report.json); exit status 1 when a ratio lies outside that run's spread")
     ap.add_argument("--reference", action="store_true",
                     help=f"write the report as the committed reference instead ({REFERENCE_DIR.relative_to(REPO)}/"
                          f"report.*, which the README shows); nothing else is written")
@@ -82,4 +106,13 @@ def main(argv=None) -> int:
     else:
         paths = write(doc, Path(args.out) if args.out else raw.parent.parent, raw.name, latest=not args.no_latest)
     print(paths["md"])
+    if args.against:
+        try:
+            ref = json.loads(Path(args.against).read_text())
+        except (OSError, ValueError) as exc:
+            print(f"--against: cannot read {args.against}: {exc}")
+            return 2
+        lines, outside = against_text(doc, ref, args.against)
+        print("\n".join(lines))
+        return 1 if outside else 0
     return 0

@@ -288,6 +288,24 @@ def ratio_text(p) -> str:
     return text if p.get("resolved") else text + ", not resolved"
 
 
+def agreement(doc: dict, ref: dict) -> list:
+    """Each comparison row present in both run documents: this run's ratio against the reference's
+    ratio and spread; ``inside`` is True when this run's ratio lies within the reference's spread
+    (None when the reference row has no spread)."""
+    key = lambda p: (p["kind"], p["config"], p["side"], p["what"])  # noqa: E731
+    theirs = {key(p): p for p in ref.get("peer_ratios") or [] if p.get("ratio") is not None}
+    out = []
+    for p in doc.get("peer_ratios") or []:
+        r = theirs.get(key(p))
+        if r is None or p.get("ratio") is None:
+            continue
+        sp = r.get("spread")
+        inside = None if not sp else bool(sp[0] <= p["ratio"] <= sp[1])
+        out.append(dict(kind=p["kind"], config=p["config"], side=p["side"], what=p["what"], ratio=p["ratio"],
+                        spread=p.get("spread"), ref_ratio=r["ratio"], ref_spread=sp, inside=inside))
+    return out
+
+
 def targets(doc: dict) -> list:
     rows = doc["rows"]
     ratios = doc.get("peer_ratios") or peer_ratios(rows)

@@ -438,8 +438,11 @@ def _left_out_md(doc) -> list:
                     if "error" in v:
                         items.append(f"headline {side}^2 E={p['E']:g} dt={name}: {sv} failed: {v['error']}")
     items += [
-        "ratios for the 1-thread and f32 processes use the numpy/scipy baselines timed in the 2-thread f64 "
-        "process (the baselines are single-threaded f64 code either way)",
+        "the explicit peers (Numba, Warp, numpy) run in every process, in its precision and beside the engine; "
+        "the sparse peers run in the 2-thread f64 process only, so the 1-thread and f32 implicit rows have no ratio",
+        "each contender's turn in a round starts after an untimed 10 ms pause (thread pools of the contender before "
+        "it stop spinning) and, for a fast step timed in batches, one untimed call (its own threads awake, as in a "
+        "loop); the ratio of a round compares the engine and the peer of that round only",
         "the scipy baseline preconditions with scalar Jacobi, the engine's PCG with 3x3 block Jacobi: iteration "
         "counts differ; both stop at the same relative residual",
         "the rod's PCG/Cholesky rows step the rod as a 3D spring-chain Model; engine.rod's own backward Euler is "
