@@ -633,6 +633,17 @@ class DirectSolver(LinearSolver):
     def _backsolve(self, entry: dict, rhs: np.ndarray) -> np.ndarray:
         raise NotImplementedError
 
+    def _product(self, model: Model, entry: dict, x, a_s: float, psd: bool, extra):
+        """``product(sol, y) -> A' sol`` (numpy, 3n) for the residual check; ``y`` holds sol as a
+        vec3 ndarray.  Here the matrix-free operator (L1) in Taichi kernels."""
+        plan = _hessian_plan(model, x, psd, extra)
+        q = entry["q"]
+
+        def product(sol, y):
+            _apply_plan(model, plan, a_s, y, q)
+            return q.to_numpy().astype(np.float64).reshape(-1)
+        return product
+
     def solve(self, model: Model, x, b, y, mass_coef: float, hess_coef: float = 1.0,
               psd: bool = True, extra=None) -> LinearSolveInfo:
         a, c = self._coefficients(mass_coef, hess_coef)
@@ -654,12 +665,10 @@ class DirectSolver(LinearSolver):
             return self._info(0, 0.0)
         sol = np.asarray(self._backsolve(entry, rhs), dtype=np.float64).reshape(-1)
         y.from_numpy(sol.reshape(-1, 3).astype(float_dtype()))
-        plan = _hessian_plan(model, x, psd, _scaled(extra, c))  # blocks at x were computed last
-        q = entry["q"]
+        product = self._product(model, entry, x, a / c, psd, _scaled(extra, c))
         it = 1
         while True:
-            _apply_plan(model, plan, a / c, y, q)  # q = A' y
-            res = rhs - q.to_numpy().astype(np.float64).reshape(-1)
+            res = rhs - product(sol, y)  # rhs - A' sol
             res[~free] = 0.0
             residual = _norm(res) / bnorm
             if residual <= self.tol or it > self.refinements or not np.isfinite(residual):
@@ -860,6 +869,19 @@ class PardisoSolver(DirectSolver):
 
     def _backsolve(self, entry, rhs):
         return entry["pardiso"].solve(rhs)
+
+    def _product(self, model, entry, x, a_s, psd, extra):
+        """A' sol from the upper triangle U just factorised (U sol + U^T sol - diag(U) sol): the same
+        matrix, no second pass over the elements (at 128^2 about 4 ms less than the matrix-free
+        product and its copies)."""
+        U = entry["matrix"]
+        if "diag_pos" not in entry:
+            pos = U.indptr[:-1]   # each row of the sorted upper triangle starts at its diagonal
+            if not np.array_equal(U.indices[pos], np.arange(U.shape[0])):
+                raise RuntimeError("the PARDISO pattern lacks a diagonal entry at the start of a row")
+            entry["diag_pos"] = pos
+        d = U.data[entry["diag_pos"]]
+        return lambda sol, y: U @ sol + U.T @ sol - d * sol
 
 
 def make_solver(name: str = "pcg", tol: float = 1e-8, max_iter: int = 1000) -> LinearSolver:
