@@ -50,8 +50,8 @@ PROFILES = {
 # per row, fewest rounds, most rounds); a round times every contender of the row once
 ROW_BUDGETS = {
     "smoke": {k: (0.0, 1, 1) for k in ("explicit", "direct", "iterative", "sequence")},
-    "quick": dict(explicit=(1.5, 9, 60), direct=(8.0, 7, 30), iterative=(0.0, 3, 3), sequence=(0.0, 3, 3)),
-    "full": dict(explicit=(1.5, 9, 60), direct=(8.0, 7, 30), iterative=(0.0, 3, 3), sequence=(0.0, 3, 3)),
+    "quick": dict(explicit=(1.5, 9, 60), direct=(8.0, 7, 30), iterative=(0.0, 3, 3), sequence=(0.0, 5, 5)),
+    "full": dict(explicit=(1.5, 9, 60), direct=(8.0, 7, 30), iterative=(0.0, 3, 3), sequence=(0.0, 5, 5)),
 }
 
 

@@ -41,15 +41,13 @@ class Contender:
     info: dict = field(default_factory=dict)
 
 
-def spread(values, lo_q: float = 10.0, hi_q: float = 90.0) -> tuple:
-    """(median, low, high) of per-round figures: the 10th and 90th percentiles from 10 rounds on,
-    the smallest and largest value below that."""
+def spread(values) -> tuple:
+    """(median, smallest, largest) of per-round figures.  The whole range, not a percentile band:
+    between two runs the median of a launch-bound row moved by more than a 10-90 band of one run's
+    rounds (measured: the engine's one-step 64^2 cloth against Numba 1.20 (0.93-1.66) in one full run,
+    0.93 in the next)."""
     v = np.asarray(values, dtype=float)
-    if len(v) >= 10:
-        lo, hi = np.percentile(v, [lo_q, hi_q])
-    else:
-        lo, hi = v.min(), v.max()
-    return float(np.median(v)), float(lo), float(hi)
+    return float(np.median(v)), float(v.min()), float(v.max())
 
 
 def _call(c: Contender, calls: int, warm: bool = False) -> float:

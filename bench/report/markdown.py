@@ -225,8 +225,8 @@ def _peers_md(doc) -> list:
          "PARDISO, CHOLMOD driven from numpy with a scatter map built once, bench/peers/sparse.py), each checked to "
          "compute the same forces / solve the same system (bench/test_correctness.py, "
          "bench/test_peers_explicit.py). ratio = engine time / peer time in the same round (below 1: the engine "
-         "is faster), the median over the rounds, with the spread of the per-round ratios (10th-90th percentile "
-         "from 10 rounds on, else smallest-largest); a row whose spread contains 1 is marked not resolved. "
+         "is faster), the median over the rounds, with the spread of the per-round ratios (smallest-largest); a "
+         "row whose spread contains 1 is marked not resolved. "
          "The *library* rows set the engine's whole step against PARDISO's numeric factorisation + solve of the "
          "same matrix alone (analysis once, no assembly, no check): what the engine adds around the library. "
          "floor = the engine row's bandwidth floor time (bench/traffic.py), where a traffic model exists.", ""]
