@@ -158,17 +158,22 @@ def test_scatter_assembly_equals_the_engines_matrix_on_two_states():
             1e-12 * np.abs(ref).max() * nf
 
 
-def test_pardiso_factorisation_alone_solves_the_peers_system():
-    """bench/peers/sparse.FactorOnly (the library row) solves the system the PARDISO peer solves
-    in its step: its solution is that step's displacement."""
+def _sparse_peer_case(name):
+    """(bench.peers.sparse, a 10^2 cloth, its start state, dt, its NumpyCloth); skips when the peer
+    ``name`` is not installed."""
     from bench.peers import sparse as peers
-    reason = peers.available("pardiso")
+    reason = peers.available(name)
     if reason:
         pytest.skip(reason)
     c = cloth(10, E=1e3, rho=0.1, B=1e-3)
     x0, v0 = config.cloth_start_state(c)
-    dt = 1.0 / 60.0
-    base = NumpyCloth(c.model, c.springs, c.bending)
+    return peers, c, x0, v0, 1.0 / 60.0, NumpyCloth(c.model, c.springs, c.bending)
+
+
+def test_pardiso_factorisation_alone_solves_the_peers_system():
+    """bench/peers/sparse.FactorOnly (the library row) solves the system the PARDISO peer solves
+    in its step: its solution is that step's displacement."""
+    peers, c, x0, v0, dt, base = _sparse_peer_case("pardiso")
     f = peers.FactorOnly(base, x0, v0, dt)
     y = f.run()
     x, v = x0.copy(), v0.copy()
@@ -185,15 +190,8 @@ def test_sparse_peers_solve_the_engines_system(name):
     """Each implicit contender (bench/peers/sparse.py) solves the engine's backward-Euler system:
     its matrix times random vectors equals engine.linalg.apply_system (relative 1e-12), and its
     step equals the engine's direct step to the tolerance it was given."""
-    from bench.peers import sparse as peers
     from engine.linalg import apply_system
-    reason = peers.available(name)
-    if reason:
-        pytest.skip(reason)
-    c = cloth(10, E=1e3, rho=0.1, B=1e-3)
-    x0, v0 = config.cloth_start_state(c)
-    dt = 1.0 / 60.0
-    base = NumpyCloth(c.model, c.springs, c.bending)
+    peers, c, x0, v0, dt, base = _sparse_peer_case(name)
     tol = 1e-10
     peer = peers.SparsePeer(name, base, tol=tol)
     A, _ = peer.system(x0, v0, dt)
