@@ -1,4 +1,4 @@
-"""The shared Taichi engine: rod, meshes, energies, integrators, solvers, recorder."""
+"""The shared Taichi engine: rod, meshes, energies, integrators, solvers (physics only: no rerun, no output files, no lesson code)."""
 import os as _os
 
 # Keep Taichi quiet on import (before any engine module imports taichi).

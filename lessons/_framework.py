@@ -309,7 +309,7 @@ class Lesson:
     config: type
     stages: list[Stage]
     order: int = 100
-    camera: str = "outside"  # the default camera of its runs' views (engine.recorder.CAMERAS)
+    camera: str = "outside"  # the default camera of its runs' views (lessons.recorder.CAMERAS)
     validate: Callable[[Any], None] | None = None  # extra up-front checks (e.g. build meshes)
 
 
@@ -448,10 +448,10 @@ def _summarise_integrators(used: list[str]) -> str:
 
 
 def write_json_atomic(path: str | os.PathLike, data, complete: bool = True) -> Path:
-    """Write ``data`` as JSON to ``path`` atomically (engine.outfile: a regular file or a new name
+    """Write ``data`` as JSON to ``path`` atomically (lessons.outfile: a regular file or a new name
     only; a write error keeps the earlier file); returns where it went (the final name, or
     ``<stem>.partial.json`` when not ``complete``)."""
-    from engine.outfile import OutputFile
+    from lessons.outfile import OutputFile
 
     out = OutputFile(path)
     out.prepare()

@@ -35,8 +35,8 @@ def simulate(ctx, name: str, model, state, dt: float, n_steps: int, integrator="
     integrators; a linear solve of backward Euler that does not converge is reported the same
     way, naming the solver. Every ``every`` steps (and at step 0) ``observe(step, state)`` is called
     (for measurements); when recording, ``log(rec, state)`` draws the geometry at the frames the
-    recorder asks for (about engine.recorder.FRAMES_PER_RUN per run, whatever ``every``), and
-    ``view`` (an engine.recorder.RunView) says how the run is shown. Returns (steps, kinetic,
+    recorder asks for (about lessons.recorder.FRAMES_PER_RUN per run, whatever ``every``), and
+    ``view`` (an lessons.recorder.RunView) says how the run is shown. Returns (steps, kinetic,
     potential) arrays at the energy samples.
     """
     every = int(every or getattr(ctx.cfg, "record_every", 20))

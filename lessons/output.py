@@ -16,7 +16,7 @@ The file is one JSON object::
 A run that did not complete (interrupted, stopped at ``--pause``, an internal error, a
 recording that could not be written) says so (``complete`` false, ``exit_reason``) and is written
 to ``<stem>.partial.json`` instead of the final name unless ``--overwrite-partial``
-(:mod:`engine.outfile`). Files written before this format (a bare list of rows) are still read by
+(:mod:`lessons.outfile`). Files written before this format (a bare list of rows) are still read by
 :func:`read_results` / :func:`result_rows`.
 """
 from __future__ import annotations

@@ -4,7 +4,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from engine.recorder import NullRecorder
+from lessons.recorder import NullRecorder
 from lessons._framework import StageContext, Stepping
 
 ROOT = Path(__file__).resolve().parent.parent

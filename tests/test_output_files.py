@@ -11,8 +11,8 @@ import sys
 import pytest
 
 from engine import runtime
-from engine.outfile import OutputFile
-from engine.recorder import run_status, summarize
+from lessons.outfile import OutputFile
+from lessons.recorder import run_status, summarize
 from lessons.output import read_results, result_rows
 from tests.helpers import ROOT, main_in
 

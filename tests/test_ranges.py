@@ -19,7 +19,7 @@ from engine.errors import BlowUpError, ParameterError
 from lessons import registry
 from lessons._budget import WORK_BUDGET_S
 from lessons._framework import StageContext, _field_type, validate_config
-from engine.recorder import NullRecorder
+from lessons.recorder import NullRecorder
 
 LESSONS = {l.id: l for l in registry.all_lessons()}
 WALKED = ("rod-waves", "springs", "area-springs", "explicit-vs-implicit")

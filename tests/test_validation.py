@@ -31,7 +31,7 @@ from engine.energies.bending import BendingEnergy
 from engine.mesh import Mesh, MeshError
 from engine.errors import ModelError
 from engine.model import Model
-from engine.recorder import summarize
+from lessons.recorder import summarize
 from lessons import cli, registry
 from lessons._framework import Stepping, _field_type, range_text
 from tests.helpers import ROOT
