@@ -116,6 +116,8 @@ class NumpyCloth:
     # values per step and sends them through a scatter map built once: a sparse matrix S with one
     # entry (+1 or -1) per placement kept, so that the CSR values are S @ values.
     _PAIRS = [(a, b) for a in range(4) for b in range(a, 4)]
+    _PAIR_A = np.array([a for a, _ in _PAIRS])
+    _PAIR_B = np.array([b for _, b in _PAIRS])
 
     def block_values(self, x, grads=None):
         """The per-step values (springs' K, then the hinges' 10 blocks), flat, written into one
@@ -136,18 +138,14 @@ class NumpyCloth:
             if grads is None:
                 _, grads = self._hinge_terms(x)
             G = np.stack(grads, axis=1)                                           # (h, 4, 3)
-            pa, pb = self._pair_index
+            pa, pb = self._PAIR_A, self._PAIR_B
             Hb = self._values[9 * m:].reshape(h, len(self._PAIRS), 3, 3)
             np.einsum("hpi,hpj->hpij", self.k[:, None, None] * G[:, pa], G[:, pb], out=Hb)
         return self._values
 
-    @property
-    def _pair_index(self):
-        return (np.array([a for a, _ in self._PAIRS]), np.array([b for _, b in self._PAIRS]))
-
     def _placements(self):
-        """(value index, row vertex, column vertex, component a, component b, sign, transposed copy
-        allowed) of every placement of every value, in the value order of ``block_values``."""
+        """(value index, row vertex, column vertex, row component, column component, sign) of every
+        placement of every value, the values numbered as ``block_values`` writes them."""
         m = len(self.i)
         comp_a, comp_b = np.divmod(np.arange(9), 3)
         vals, rows, cols, ca, cb, sign = [], [], [], [], [], []

@@ -70,43 +70,34 @@ def _call(c: Contender, calls: int, warm: bool = False) -> float:
 
 
 def measure_row(benchmark, contenders: list, *, group: str, budget: str, steps: int = 1, warmup: int = 2,
-                min_rounds: int | None = None, budget_s: float | None = None, left_out: dict | None = None,
-                warm: bool = True, **info):
+                left_out: dict | None = None, warm: bool = True, **info):
     """Time ``contenders`` interleaved in rounds with ``benchmark.pedantic`` (one round = one timed
     body).  ``warmup`` untimed calls of each first (compilation, caches, a solver's analysis), then
     one probe call each chooses the batch sizes and the number of rounds: the row's time budget
-    (``config.row_budget(budget)``) divided by a round's time, at least ``min_rounds``.  In a round,
-    each contender's turn starts with an untimed pause (GAP_S) and, with ``warm``, one untimed call.  ``left_out``: contenders
-    of this row that were not timed, with the reason.  Extra keyword arguments go to
+    (``config.row_budget(budget)``) divided by a round's time, within the fewest and most rounds it
+    gives.  In a round, each contender's turn starts with an untimed pause (GAP_S) and, with
+    ``warm``, one untimed call.  ``left_out``: contenders of this row that were not timed, with the
+    reason.  Extra keyword arguments go to
     ``benchmark.extra_info`` (with ``steps_per_call``, ``config``, ``profile``)."""
     if not contenders:
         raise ValueError("measure_row needs at least one contender")
-    gap = 0.0 if config.profile() == "smoke" else GAP_S
+    smoke = config.profile() == "smoke"   # every body once, no pauses
+    gap = 0.0 if smoke else GAP_S
     seconds, min_r, max_r = config.row_budget(budget)
-    if budget_s is not None:
-        seconds = budget_s
-    if min_rounds is not None:
-        min_r = min_rounds
     benchmark.group = group
     benchmark.extra_info.update(info, steps_per_call=int(steps), config=config.config_name(),
                                 profile=config.profile(), left_out=dict(left_out or {}))
-    smoke = config.profile() == "smoke"
     for c in contenders:
         for _ in range(0 if smoke else warmup):
             _call(c, 1)
-            if c.after:
-                c.after()
     if smoke:
         calls = {c.impl: 1 for c in contenders}
         rounds = 1
     else:
         probe = {c.impl: _call(c, 1) for c in contenders}
-        for c in contenders:
-            if c.after:
-                c.after()
         calls = {c.impl: 1 if c.setup is not None else max(1, math.ceil(BATCH_S / max(probe[c.impl], 1e-7)))
                  for c in contenders}
-        round_s = sum(probe[k] * (calls[k] + (1 if warm else 0)) + GAP_S for k in probe)
+        round_s = sum(probe[k] * (calls[k] + (1 if warm else 0)) + gap for k in probe)
         rounds = int(min(max_r, max(min_r, seconds / max(round_s, 1e-9))))
     times = {c.impl: [] for c in contenders}
     figures = {c.impl: [] for c in contenders}

@@ -98,8 +98,8 @@ def _engine(c, solver, tol, steps=1):
     return Contender(impl, run, setup=reset, after=after, info=info), None
 
 
-def _peer(c, name, tol, steps=1):
-    impl = "scipy" if name == "scipy-cg" else "peer-" + name
+def _peer(c, impl, tol, steps=1):
+    name = "scipy-cg" if impl == "scipy" else impl[len("peer-"):]
     reason = peers.available(name)
     if reason:
         return None, reason
@@ -141,7 +141,7 @@ def _row(c, wanted, tol, steps=1):
             if impl.startswith("engine-"):
                 cont, why = _engine(c, impl[len("engine-"):], tol, steps)
             else:
-                cont, why = _peer(c, "scipy-cg" if impl == "scipy" else impl[len("peer-"):], tol, steps)
+                cont, why = _peer(c, impl, tol, steps)
         if why is None:
             out.append(cont)
         else:
@@ -172,7 +172,7 @@ def test_backward_euler_direct(benchmark, side):
         pytest.skip("; ".join(f"{k}: {v}" for k, v in left.items()))
     row = measure_row(benchmark, contenders, group="cloth-implicit-step", budget="direct", left_out=left,
                       row="direct", **_info(c))
-    _check(c, row)
+    _check(row)
 
 
 @pytest.mark.parametrize("tol", TOLS)
@@ -187,10 +187,10 @@ def test_backward_euler_iterative(benchmark, side, tol):
     row = measure_row(benchmark, contenders, group="cloth-implicit-step", budget="iterative", left_out=left,
                       warmup=1, row="iterative", tol=tol, **info)
     _pcg_traffic(row, info)
-    _check(c, row)
+    _check(row)
 
 
-def _check(c, row):
+def _check(row):
     for impl, r in row.items():
         res = r["info"].get("residual")
         if res is not None:
@@ -218,4 +218,4 @@ def test_backward_euler_sequence(benchmark, side):
         k.after = None   # the split of the last of 60 steps means little
     row = measure_row(benchmark, contenders, group="cloth-implicit-sequence", budget="sequence", steps=steps,
                       left_out=left, warmup=1, warm=False, tol=TOLS[0], **_info(c))
-    _check(c, row)
+    _check(row)

@@ -17,15 +17,13 @@ def sync():
     ti.sync()
 
 
-def measure(benchmark, fn, *, group: str, steps: int = 1, setup=None, warmup: int = 1, min_rounds: int = 1,
-            expect_s: float | None = None, **info):
+def measure(benchmark, fn, *, group: str, steps: int = 1, setup=None, warmup: int = 1, **info):
     """Time ``fn()`` (which does ``steps`` steps or kernel calls and synchronises) with
     ``benchmark.pedantic``.  ``setup()`` (untimed) runs before every call (e.g. resets the
     state); without it, fast bodies are repeated ``iterations`` times per round.  Extra keyword
     arguments go to ``benchmark.extra_info`` (with ``steps_per_call``, ``config``, ``profile``).
-    ``expect_s``: with ``warmup=0``, the expected seconds per call (e.g. extrapolated from a smaller
-    size), used instead of a probe call to choose the rounds (a slow baseline is then called only
-    as often as it is timed).  Returns fn's last result."""
+    Returns fn's last result.  (Comparison rows, engine beside its peers, are timed interleaved by
+    bench/interleave.py instead.)"""
     budget, max_rounds = config.budget()
     benchmark.group = group
     benchmark.extra_info.update(info, steps_per_call=int(steps), config=config.config_name(),
@@ -54,8 +52,6 @@ def measure(benchmark, fn, *, group: str, steps: int = 1, setup=None, warmup: in
     _warmed.add(key)
     if times:
         t_first = times[-1]
-    elif expect_s is not None:
-        t_first = float(expect_s)
     else:
         if setup is not None:
             setup()
@@ -63,7 +59,7 @@ def measure(benchmark, fn, *, group: str, steps: int = 1, setup=None, warmup: in
         fn()
         t_first = time.perf_counter() - t0
     iterations = 1 if setup is not None else max(1, math.ceil(2e-3 / max(t_first, 1e-7)))
-    rounds = int(min(max_rounds, max(min_rounds, budget / max(t_first * iterations, 1e-9))))
+    rounds = int(min(max_rounds, max(1, budget / max(t_first * iterations, 1e-9))))
     benchmark.extra_info.update(iterations=iterations, rounds=rounds)
     result = {}
 

@@ -600,6 +600,12 @@ class PCGSolver(LinearSolver):
         return self._info(it, residual, message)
 
 
+def upper_product(U, y: np.ndarray, diag: np.ndarray | None = None) -> np.ndarray:
+    """A y for the symmetric A stored as its upper triangle U (scipy CSR), without building A:
+    U y + U^T y - diag(U) y.  ``diag``: U's diagonal when already at hand."""
+    return U @ y + U.T @ y - (U.diagonal() if diag is None else diag) * y
+
+
 def _norm(a: np.ndarray) -> float:
     """|a| without BLAS: numpy's threaded ddot leaves an OpenBLAS thread spinning on the second
     core for ~0.1 s (unless OPENBLAS_THREAD_TIMEOUT was set before numpy loaded, see
@@ -881,7 +887,7 @@ class PardisoSolver(DirectSolver):
                 raise RuntimeError("the PARDISO pattern lacks a diagonal entry at the start of a row")
             entry["diag_pos"] = pos
         d = U.data[entry["diag_pos"]]
-        return lambda sol, y: U @ sol + U.T @ sol - d * sol
+        return lambda sol, y: upper_product(U, sol, d)
 
 
 def make_solver(name: str = "pcg", tol: float = 1e-8, max_iter: int = 1000) -> LinearSolver:

@@ -161,11 +161,10 @@ class SparsePeer:
 
 
 def product(A, y, upper: bool):
-    """A y for the full symmetric matrix, given in full or (``upper``) as its upper triangle U,
-    without building a second matrix: U y + U^T y - diag(U) y."""
-    if upper:
-        return A @ y + A.T @ y - A.diagonal() * y
-    return A @ y
+    """A y for the full symmetric matrix, given in full or (``upper``) as its upper triangle, without
+    building a second matrix (engine.linalg.upper_product: the engine's own PARDISO check)."""
+    from engine.linalg import upper_product
+    return upper_product(A, y) if upper else A @ y
 
 
 def _norm(a) -> float:
