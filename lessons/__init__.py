@@ -1,2 +1,2 @@
-"""The lessons, one package each, and their command line: ``python -m lessons`` (lessons/cli.py)."""
+"""The lessons, one package each, and their command line: ``python -m lessons`` (lessons/app/cli.py)."""
 import engine  # noqa: F401  (first: it sets the BLAS threads' environment before numpy loads)

@@ -1,4 +1,4 @@
-"""``python -m lessons``: the command line (lessons/cli.py), with signals handled from the first
+"""``python -m lessons``: the command line (lessons/app/cli.py), with signals handled from the first
 instruction to the last.
 
 A signal before the command line has installed its handlers (while Taichi is imported) ends the
@@ -29,7 +29,7 @@ def _late_exit_code():
     signal then would kill it (exit -2 instead of 130)."""
     if not _code:
         return
-    cli = sys.modules.get("lessons.cli")
+    cli = sys.modules.get("lessons.app.cli")
     signum = cli.late_signal() if cli is not None else None
     for stream in (sys.stdout, sys.stderr):
         try:
@@ -43,7 +43,7 @@ for _sig in _SIGNALS:
     signal.signal(_sig, _before_main)
 atexit.register(_late_exit_code)
 
-from .cli import main  # noqa: E402
+from .app.cli import main  # noqa: E402
 
 _code.append(main(restore_signals=False))
 sys.exit(_code[0])

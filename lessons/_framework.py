@@ -451,7 +451,7 @@ def write_json_atomic(path: str | os.PathLike, data, complete: bool = True) -> P
     """Write ``data`` as JSON to ``path`` atomically (lessons.outfile: a regular file or a new name
     only; a write error keeps the earlier file); returns where it went (the final name, or
     ``<stem>.partial.json`` when not ``complete``)."""
-    from lessons.outfile import OutputFile
+    from lessons.app.outfile import OutputFile
 
     out = OutputFile(path)
     out.prepare()

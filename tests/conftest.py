@@ -17,9 +17,9 @@ def default_recordings(tmp_path_factory):
     """{lesson id: (path of its .rrd, the Recorder that wrote it)}: every lesson run at its
     defaults, as ``python -m lessons run all`` records it (the recorder's plan is what the
     blueprint was built from)."""
-    from lessons import registry
+    from lessons.app import registry
     from lessons._framework import run_lesson
-    from lessons.cli import _make_recorder
+    from lessons.app.cli import _make_recorder
 
     out_dir = tmp_path_factory.mktemp("recordings")
     made = {}

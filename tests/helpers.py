@@ -4,7 +4,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from lessons.recorder import NullRecorder
+from lessons.app.recorder import NullRecorder
 from lessons._framework import StageContext, Stepping
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -52,9 +52,9 @@ def cli(*args, cwd, timeout=300, env=None):
 
 
 def main_in(tmp_path, monkeypatch, capture, *argv, stdin=None):
-    """lessons.cli.main(argv) run in tmp_path (stdin replaced when given); returns (rc, stdout,
+    """lessons.app.cli.main(argv) run in tmp_path (stdin replaced when given); returns (rc, stdout,
     stderr) as ``capture`` (pytest's capsys, or capfd to include what the Rerun SDK printed) saw them."""
-    import lessons.cli as cli_mod
+    import lessons.app.cli as cli_mod
     monkeypatch.chdir(tmp_path)
     if stdin is not None:
         monkeypatch.setattr(sys, "stdin", stdin)

@@ -35,7 +35,7 @@ def _python(code: str, cwd, **env) -> subprocess.CompletedProcess:
 
 
 def _lessons(args, cwd, **env) -> subprocess.CompletedProcess:
-    return _python(f"import sys; from lessons.cli import main; sys.exit(main({list(args)!r}))", cwd, **env)
+    return _python(f"import sys; from lessons.app.cli import main; sys.exit(main({list(args)!r}))", cwd, **env)
 
 
 # ------------------------------------------------------------------------------ blow-ups

@@ -6,7 +6,7 @@ import sys
 
 import pytest
 
-from lessons.output import read_results, result_rows
+from lessons.app.results import read_results, result_rows
 from tests.helpers import cli, main_in
 
 
@@ -124,7 +124,7 @@ def test_view_without_display_says_so(tmp_path):
 
 
 def test_an_internal_error_is_one_line_and_exit_1(tmp_path, monkeypatch, capsys):
-    import lessons.cli as cli_mod
+    import lessons.app.cli as cli_mod
 
     def boom(*args, **kwargs):
         raise ZeroDivisionError("float division by zero")
@@ -159,7 +159,7 @@ def test_an_internal_error_is_one_line_and_exit_1(tmp_path, monkeypatch, capsys)
     (["1-5"], [1, 2, 3, 4, 5]),
 ])
 def test_parse_stages_takes_numbers_lists_ranges_and_repeats(values, expected):
-    from lessons.cli import parse_stages
+    from lessons.app.cli import parse_stages
     assert parse_stages(values, 5, "springs") == expected
 
 
@@ -171,7 +171,7 @@ def test_parse_stages_takes_numbers_lists_ranges_and_repeats(values, expected):
     (["2", "9"], "(got 9)"),
 ])
 def test_parse_stages_rejects_bad_forms_naming_the_range(values, shown):
-    from lessons.cli import UsageError, parse_stages
+    from lessons.app.cli import UsageError, parse_stages
     with pytest.raises(UsageError) as info:
         parse_stages(values, 5, "springs")
     message = str(info.value)
@@ -197,7 +197,7 @@ def _stages_run(out, lesson="rod-waves"):
     (["--stage", "2-9"], "(got '2-9')"),
 ])
 def test_bad_stage_values_are_one_line_exit_2_and_write_nothing(monkeypatch, tmp_path, capsys, argv, needle):
-    import lessons.cli as cli_mod
+    import lessons.app.cli as cli_mod
     monkeypatch.setattr(cli_mod, "run_lesson", lambda *a, **k: pytest.fail("a stage ran"))
     rc, out, err = main_in(tmp_path, monkeypatch, capsys, "run", "rod-waves", *argv, "--results", "res.json")
     assert rc == 2
@@ -230,7 +230,7 @@ class _FakeTty(io.StringIO):
 
 @pytest.mark.parametrize("stdin", [io.StringIO("\n"), None])
 def test_pause_is_refused_when_stdin_is_not_a_tty(monkeypatch, tmp_path, capsys, stdin):
-    import lessons.cli as cli_mod
+    import lessons.app.cli as cli_mod
     monkeypatch.setattr(cli_mod, "run_lesson", lambda *a, **k: pytest.fail("a stage ran"))
     monkeypatch.setattr(sys, "stdin", stdin)  # None: no stdin at all (e.g. a detached process)
     rc, out, err = main_in(tmp_path, monkeypatch, capsys, "run", "rod-waves", "--pause", "--results", "res.json")
@@ -275,8 +275,8 @@ def test_pause_stops_at_end_of_input_and_keeps_the_exit_code_of_what_ran(monkeyp
 
 
 def test_pause_with_all_pauses_between_stages_and_between_lessons(monkeypatch, tmp_path, capsys):
-    import lessons.cli as cli_mod
-    from lessons import registry
+    import lessons.app.cli as cli_mod
+    from lessons.app import registry
     first, second = registry.all_lessons()[:2]
     n = len(registry.all_lessons())
     answers = "\n" * (len(first.stages) - 1) + "q\n"

@@ -4,7 +4,7 @@ Hypothesis builds argument lists from every flag the CLI knows (every lesson's c
 the time-stepping options, the run-level options) with random values: numbers inside and
 outside their ranges, 0, -1, nan, inf, huge integers, garbage strings, missing values,
 unknown flags, unknown lessons, --stage out of range, options before and after the lesson.
-``lessons.cli.main`` runs in-process with the lesson runner replaced by a stub, so a list that
+``lessons.app.cli.main`` runs in-process with the lesson runner replaced by a stub, so a list that
 validates does not simulate. Every outcome must be either
 
 - a usage error: exit 2, exactly one line on stderr naming the parameter, nothing written, the
@@ -17,7 +17,7 @@ Lists made only of valid tokens (in any order, '--flag value' or '--flag=value')
 with exactly those values. A few random valid lists are also run for real in a subprocess
 (small configs, one stage) to prove the path end to end.
 
-What this found (fixed in lessons/cli.py; the cases are kept as explicit examples): no command
+What this found (fixed in lessons/app/cli.py; the cases are kept as explicit examples): no command
 printed help and exited 2 with nothing on stderr; ``--results`` with a name too long for the
 file system was an OSError traceback; a bad ``--results`` was reported only after ``--record``
 had created its directory; an option value before the lesson (``run --stage 1 rod-waves``) was
@@ -40,9 +40,9 @@ from unittest import mock
 from hypothesis import HealthCheck, example, given, settings, strategies as st
 
 from engine import runtime
-from lessons import cli, registry
+from lessons.app import cli, registry
 from lessons._framework import Stepping, _field_type
-from lessons.output import result_rows
+from lessons.app.results import result_rows
 from tests.helpers import ROOT
 
 LESSONS = registry.all_lessons()
@@ -211,7 +211,7 @@ class SimpleCall:
 
 
 def call_main(argv):
-    """Run ``lessons.cli.main(argv)`` in a fresh temporary directory (holding only a regular file
+    """Run ``lessons.app.cli.main(argv)`` in a fresh temporary directory (holding only a regular file
     'blocker') with the runner stubbed; returns (rc, stdout, stderr, stub, files written)."""
     stub = Stub()
     out, err = io.StringIO(), io.StringIO()
@@ -278,7 +278,7 @@ def check_outcome(argv, rc, out, err, stub, written):
             assert all(1 <= s <= len(call.lesson.stages) for s in call.stages), context
 
 
-# Found by this test (and fixed in lessons/cli.py); kept as explicit examples so that they
+# Found by this test (and fixed in lessons/app/cli.py); kept as explicit examples so that they
 # are tried on every run, whatever the random draw.
 FOUND = [
     [],                                                     # help on stdout, exit 2, nothing on stderr

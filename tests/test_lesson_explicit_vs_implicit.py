@@ -12,7 +12,7 @@ from engine.linalg import pardiso_available
 
 from engine.constants import G
 from engine.errors import ParameterError
-from lessons.recorder import Recorder, summarize
+from lessons.app.recorder import Recorder, summarize
 from lessons._framework import validate_config
 from lessons.explicit_vs_implicit import LESSON, ExplicitImplicitConfig
 from engine.theory.schemes import symplectic_euler_growth

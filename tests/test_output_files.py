@@ -11,14 +11,14 @@ import sys
 import pytest
 
 from engine import runtime
-from lessons.outfile import OutputFile
-from lessons.recorder import run_status, summarize
-from lessons.output import read_results, result_rows
+from lessons.app.outfile import OutputFile
+from lessons.app.recorder import run_status, summarize
+from lessons.app.results import read_results, result_rows
 from tests.helpers import ROOT, main_in
 
 
 def no_stage_runs(monkeypatch):
-    import lessons.cli as cli_mod
+    import lessons.app.cli as cli_mod
     monkeypatch.setattr(cli_mod, "run_lesson", lambda *a, **k: pytest.fail("a stage ran"))
 
 
@@ -234,7 +234,7 @@ def test_a_partial_run_never_replaces_a_complete_file_unless_asked(tmp_path, mon
 def test_a_second_signal_during_clean_up_is_noted_not_raised():
     import signal
 
-    from lessons.cli import _Signals
+    from lessons.app.cli import _Signals
     s = _Signals()
     with pytest.raises(KeyboardInterrupt):
         s.handler(signal.SIGINT, None)

@@ -16,10 +16,10 @@ import numpy as np
 import pytest
 
 from engine.errors import BlowUpError, ParameterError
-from lessons import registry
+from lessons.app import registry
 from lessons._budget import WORK_BUDGET_S
 from lessons._framework import StageContext, _field_type, validate_config
-from lessons.recorder import NullRecorder
+from lessons.app.recorder import NullRecorder
 
 LESSONS = {l.id: l for l in registry.all_lessons()}
 WALKED = ("rod-waves", "springs", "area-springs", "explicit-vs-implicit")

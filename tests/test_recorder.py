@@ -8,8 +8,8 @@ import time
 import numpy as np
 import pytest
 
-from lessons.recorder import (ENERGY_SAMPLES, FRAMES_PER_RUN, MIN_FRAMES_PER_RUN, PROGRESS_TICKS, NullRecorder,
-                             Recorder, RunView, check_writable, strain_colors, summarize)
+from lessons.app.recorder import (ENERGY_SAMPLES, FRAMES_PER_RUN, MIN_FRAMES_PER_RUN, PROGRESS_TICKS, NullRecorder,
+                                 Recorder, RunView, check_writable, strain_colors, summarize)
 from lessons.rod_waves import LESSON
 from tests.helpers import ROOT, run_stage
 
@@ -156,7 +156,7 @@ def test_killed_writer_leaves_no_file_under_the_final_name(tmp_path):
     path = tmp_path / "killed.rrd"
     code = (
         "import time, numpy as np\n"
-        "from lessons.recorder import Recorder\n"
+        "from lessons.app.recorder import Recorder\n"
         f"rec = Recorder({str(path)!r}, 'test_kill')\n"
         "rec.stage(1, 's', 't'); rec.run('r')\n"
         "for k in range(10**6):\n"

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 import rerun.blueprint as rrb
 
-from lessons.recorder import FOV_Y, summarize
-from lessons import registry
+from lessons.app.recorder import FOV_Y, summarize
+from lessons.app import registry
 
 SIZE_BUDGET = 20_000_000  # bytes, every default recording
 LESSON_IDS = [l.id for l in registry.all_lessons()]
@@ -124,7 +124,7 @@ def test_runs_draw_enough_frames_to_see_them_move(layouts, lesson_id):
     MIN_FRAMES_PER_RUN over its span on the progress timeline (pro rata when the stage gives its
     runs a common span longer than this run; at most one per step; runs that blew up early or drew
     a single state are exempt)."""
-    from lessons.recorder import MIN_FRAMES_PER_RUN
+    from lessons.app.recorder import MIN_FRAMES_PER_RUN
     _, rec, _, _ = layouts[lesson_id]
     for stage in rec.stages:
         for run in stage.scene_runs:

@@ -36,7 +36,7 @@ def test_environment_errors_name_the_variable(monkeypatch, name, value, needle):
 
 
 def test_a_bad_environment_variable_is_bad_input_on_the_command_line(tmp_path, monkeypatch, capsys):
-    import lessons.cli as cli_mod
+    import lessons.app.cli as cli_mod
     monkeypatch.chdir(tmp_path)
     monkeypatch.setenv("ELASTIC_THREADS", "abc")
     assert cli_mod.main(["run", "rod-waves", "--stage", "1", "--no-record"]) == 2
@@ -60,8 +60,8 @@ def test_help_works_without_home(tmp_path):
 
 
 def test_version_prints_the_package_version(tmp_path, capsys):
-    import lessons.cli as cli_mod
-    from lessons.output import package_version
+    import lessons.app.cli as cli_mod
+    from lessons.app.results import package_version
     assert cli_mod.main(["--version"]) == 0
     assert capsys.readouterr().out.strip() == f"python -m lessons (elastic-lessons) {package_version()}"
 

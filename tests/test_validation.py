@@ -31,8 +31,8 @@ from engine.energies.bending import BendingEnergy
 from engine.mesh import Mesh, MeshError
 from engine.errors import ModelError
 from engine.model import Model
-from lessons.recorder import summarize
-from lessons import cli, registry
+from lessons.app.recorder import summarize
+from lessons.app import cli, registry
 from lessons._framework import Stepping, _field_type, range_text
 from tests.helpers import ROOT
 
@@ -40,7 +40,7 @@ LESSONS = registry.all_lessons()
 
 
 def main_in(tmp_path, *argv):
-    """``lessons.cli.main(argv)`` in-process with ``tmp_path`` as the working directory; returns
+    """``lessons.app.cli.main(argv)`` in-process with ``tmp_path`` as the working directory; returns
     (rc, stdout, stderr)."""
     out, err = io.StringIO(), io.StringIO()
     old = os.getcwd()

@@ -1,12 +1,12 @@
 """Pictures of the recordings as the real Rerun viewer shows them, for the README.
 
-    python -m lessons.pictures --readme               # the README's pictures, docs/pictures/*.jpg
-    python -m lessons.pictures                        # recordings/*.rrd -> docs/pictures/
-    python -m lessons.pictures recordings/bending.rrd --tab 4 --out /tmp/pics
-    python -m lessons.pictures --also bending=4 --also springs=5
+    python -m lessons.tools.pictures --readme         # the README's pictures, docs/pictures/*.jpg
+    python -m lessons.tools.pictures                  # recordings/*.rrd -> docs/pictures/
+    python -m lessons.tools.pictures recordings/bending.rrd --tab 4 --out /tmp/pics
+    python -m lessons.tools.pictures --also bending=4 --also springs=5
 
 Each recording (lesson = the file's name without .rrd) is opened in the viewer headless
-(lessons.viewer.HeadlessViewer: Xvfb + the viewer from rerun-sdk on Vulkan/lavapipe) and gives
+(lessons.tools.viewer.HeadlessViewer: Xvfb + the viewer from rerun-sdk on Vulkan/lavapipe) and gives
 
   <lesson>-open.png     the whole window as the viewer shows it at open (its opening tab)
   <lesson>-stage<N>.png the whole window with tab N shown (N: 1-based position of the tab in
@@ -65,7 +65,7 @@ def _also(text: str) -> tuple[str, int]:
 
 
 def parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m lessons.pictures", description=__doc__.split("\n\n")[0],
+    p = argparse.ArgumentParser(prog="python -m lessons.tools.pictures", description=__doc__.split("\n\n")[0],
                                 epilog=__doc__.split("\n\n", 2)[2], formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("recordings", nargs="*", metavar="RRD", help="recordings to photograph (default: recordings/*.rrd)")
     p.add_argument("--out", default="docs/pictures", metavar="DIR", help="where the PNGs go (default: docs/pictures)")
@@ -179,29 +179,29 @@ def main(argv: list[str] | None = None) -> int:
         return 0 if exc.code == 0 else 2
     rrds = [Path(r) for r in args.recordings] or sorted(Path("recordings").glob("*.rrd"))
     if not rrds:
-        print("python -m lessons.pictures: no recordings given and none in recordings/ "
+        print("python -m lessons.tools.pictures: no recordings given and none in recordings/ "
               "(run 'python -m lessons run all' first)", file=sys.stderr)
         return 2
     absent = [str(r) for r in rrds if not r.is_file()]
     if absent:
-        print(f"python -m lessons.pictures: no such recording: {', '.join(absent)}", file=sys.stderr)
+        print(f"python -m lessons.tools.pictures: no such recording: {', '.join(absent)}", file=sys.stderr)
         return 2
     out = Path(args.out)
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        print(f"python -m lessons.pictures: --out {out}: cannot create it ({exc.strerror or exc})", file=sys.stderr)
+        print(f"python -m lessons.tools.pictures: --out {out}: cannot create it ({exc.strerror or exc})", file=sys.stderr)
         return 2
     try:
         when = _when(args.time)
     except argparse.ArgumentTypeError as exc:
-        print(f"python -m lessons.pictures: {exc}", file=sys.stderr)
+        print(f"python -m lessons.tools.pictures: {exc}", file=sys.stderr)
         return 2
     if args.readme:
         try:
             _readme_pictures(rrds, out, args.timeout, log=lambda s: print(s, flush=True))
         except ViewerUnavailable as exc:
-            print(f"python -m lessons.pictures: {exc}", file=sys.stderr)
+            print(f"python -m lessons.tools.pictures: {exc}", file=sys.stderr)
             return 1
         return 0
     for rrd in rrds:
@@ -209,7 +209,7 @@ def main(argv: list[str] | None = None) -> int:
         try:
             photograph(rrd, out, args.size, args.tab, also, args.timeout, when, log=lambda s: print(s, flush=True))
         except ViewerUnavailable as exc:
-            print(f"python -m lessons.pictures: {exc}", file=sys.stderr)
+            print(f"python -m lessons.tools.pictures: {exc}", file=sys.stderr)
             return 1
     return 0
 

@@ -4,7 +4,7 @@ One :class:`Recorder` per lesson run writes one ``.rrd`` file through its own
 ``rr.RecordingStream`` (never the global stream). The recording is collected in memory and
 written by :meth:`Recorder.close` into a temporary file beside the target (created when the
 recorder is made, as the proof that the file can be written there), which is then renamed onto
-the target (:mod:`lessons.outfile`): a crash, a kill or a full disk never leaves a truncated file
+the target (:mod:`lessons.app.outfile`): a crash, a kill or a full disk never leaves a truncated file
 under the final name, and never destroys the earlier one. A run that did not complete is written
 to ``<stem>.partial.rrd`` and says so in the file (the ``run`` recording property).
 
@@ -109,7 +109,7 @@ def check_writable(path: str | os.PathLike) -> Path:
 
     Creates missing parent directories (that is what a user asking for
     ``--record out/run.rrd`` wants) but writes nothing else. The checks are those of
-    :meth:`lessons.outfile.OutputFile.check` (a regular file or a new name; a name that fits).
+    :meth:`lessons.app.outfile.OutputFile.check` (a regular file or a new name; a name that fits).
     """
     out = OutputFile(path)
     out.check()

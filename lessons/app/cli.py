@@ -9,7 +9,7 @@ unexpectedly, or an output file could not be written); 2 bad input (one line on 
 nothing written); 128 + the signal for a signal: 130 interrupted (Ctrl-C, SIGINT), 143
 terminated (SIGTERM), 129 hung up (SIGHUP); 141 the output pipe was closed (``| head``).
 
-Output files (lessons.outfile): checked and created (as an empty temporary file) before the first
+Output files (lessons.app.outfile): checked and created (as an empty temporary file) before the first
 stage; written when the run ends, atomically. A run that does not complete (a signal, an
 internal error, ``--pause`` stopped, a recording that could not be written) writes
 ``<stem>.partial.rrd`` / ``<stem>.partial.json``, marked partial inside, and leaves the files of
@@ -29,12 +29,12 @@ import time
 from datetime import datetime, timezone
 from pathlib import Path
 
-from lessons.outfile import OutputWriteError
+from lessons.app.outfile import OutputWriteError
 
 from . import registry
-from .output import encode as encode_results, results_document
-from ._framework import (Stepping, Terminated, _field_type, _pending_signal, note_signal, range_text, run_lesson,
-                         validate_config)
+from .results import encode as encode_results, results_document
+from .._framework import (Stepping, Terminated, _field_type, _pending_signal, note_signal, range_text,
+                          run_lesson, validate_config)
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INT, EXIT_TERM = 0, 1, 2, 130, 143
 EXIT_HUP, EXIT_PIPE = 129, 141
@@ -267,7 +267,7 @@ def _main_parser(lesson_ids: list[str]) -> argparse.ArgumentParser:
 
 
 def _version() -> str:
-    from .output import package_version
+    from .results import package_version
     return f"(elastic-lessons) {package_version()}"
 
 
@@ -285,7 +285,7 @@ def _shown(text: str) -> str:
 
 def _output(flag: str, text: str, overwrite_partial: bool, lesson_id: str | None = None):
     """The OutputFile for ``flag PATH`` (constructed and checked, nothing created yet)."""
-    from lessons.outfile import OutputFile
+    from lessons.app.outfile import OutputFile
     hint = "choose a writable path" + (" or --no-record" if flag == "--record" else "")
     try:
         target = OutputFile(text, overwrite_partial=overwrite_partial)
@@ -389,7 +389,7 @@ if hasattr(signal, "SIGHUP"):
 
 def _outcome(exc: BaseException | None, stopped: bool, passed: bool) -> tuple[int, str]:
     """(exit code, exit reason) of a run that ended with ``exc`` (None: normally)."""
-    from lessons.outfile import OutputWriteError
+    from lessons.app.outfile import OutputWriteError
     if exc is None:
         code = EXIT_OK if passed else EXIT_FAILED
         if stopped:
@@ -654,14 +654,14 @@ def _now(t: float | None = None) -> str:
 
 
 def _package_version() -> str:
-    from .output import package_version
+    from .results import package_version
     return package_version()
 
 
 def _make_recorder(lesson, path, live: bool = False):
     """The lesson's recorder: the file at ``path`` (None: no file), streaming into a viewer that
     follows the stage being run when ``live``."""
-    from lessons.recorder import NullRecorder, Recorder
+    from lessons.app.recorder import NullRecorder, Recorder
     if path is None and not live:
         return NullRecorder()
     return Recorder(path, "elastic_lessons_" + lesson.id.replace("-", "_"), title=f"{lesson.id}: {lesson.title}",

@@ -6,7 +6,7 @@ that display (``--renderer vulkan``: Mesa's lavapipe where there is no GPU), con
 ``rerun.experimental.ViewerClient`` to it and waits until the recording is loaded and a
 first frame is painted::
 
-    from lessons.viewer import HeadlessViewer, drawn_fraction
+    from lessons.tools.viewer import HeadlessViewer, drawn_fraction
 
     with HeadlessViewer("recordings/bending.rrd", size=(1600, 1000)) as v:
         v.set_time(None, "start")                   # pause (recordings open playing) and settle

@@ -16,7 +16,7 @@ The file is one JSON object::
 A run that did not complete (interrupted, stopped at ``--pause``, an internal error, a
 recording that could not be written) says so (``complete`` false, ``exit_reason``) and is written
 to ``<stem>.partial.json`` instead of the final name unless ``--overwrite-partial``
-(:mod:`lessons.outfile`). Files written before this format (a bare list of rows) are still read by
+(:mod:`lessons.app.outfile`). Files written before this format (a bare list of rows) are still read by
 :func:`read_results` / :func:`result_rows`.
 """
 from __future__ import annotations
@@ -36,7 +36,7 @@ def package_version() -> str:
         return version("elastic-lessons")
     except Exception:  # not installed (run from a checkout): the version in pyproject.toml
         import re
-        text = (Path(__file__).resolve().parent.parent / "pyproject.toml").read_text(encoding="utf-8")
+        text = (Path(__file__).resolve().parents[2] / "pyproject.toml").read_text(encoding="utf-8")
         m = re.search(r'^version\s*=\s*"([^"]+)"', text, re.MULTILINE)
         return m[1] if m else "unknown"
 

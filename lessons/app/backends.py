@@ -65,7 +65,7 @@ def check(lessons, configs: dict | None = None) -> None:
 
     info = runtime.current()
     if info is None:
-        raise RuntimeError("engine.runtime.init() must run before lessons.backends.check")
+        raise RuntimeError("engine.runtime.init() must run before lessons.app.backends.check")
     arch, fp = backend_name(), running_fp()
     if arch != info.arch:  # e.g. a TI_ARCH that Taichi let override the arch it was given
         raise RuntimeConfigError(f"Taichi runs on {arch}, not on the {info.arch} this run was asked for; "
