@@ -159,7 +159,7 @@ def test_an_internal_error_is_one_line_and_exit_1(tmp_path, monkeypatch, capsys)
     (["1-5"], [1, 2, 3, 4, 5]),
 ])
 def test_parse_stages_takes_numbers_lists_ranges_and_repeats(values, expected):
-    from lessons.app.cli import parse_stages
+    from lessons.app.arguments import parse_stages
     assert parse_stages(values, 5, "springs") == expected
 
 
@@ -171,7 +171,7 @@ def test_parse_stages_takes_numbers_lists_ranges_and_repeats(values, expected):
     (["2", "9"], "(got 9)"),
 ])
 def test_parse_stages_rejects_bad_forms_naming_the_range(values, shown):
-    from lessons.app.cli import UsageError, parse_stages
+    from lessons.app.arguments import UsageError, parse_stages
     with pytest.raises(UsageError) as info:
         parse_stages(values, 5, "springs")
     message = str(info.value)

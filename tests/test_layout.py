@@ -1,7 +1,7 @@
 """The layout's promise, checked from the sources: the engine is physics only. No module under
 engine/ imports rerun (recordings belong to lessons/app/recorder.py) or any lesson module; rerun
-is imported by lessons/app/recorder.py alone, besides the viewer tools that open recordings
-(lessons/tools/); and the lessons never import those tools."""
+is imported by the recorder and the blueprint it sends (lessons/app/) alone, besides the viewer
+tools that open recordings (lessons/tools/); and the lessons never import those tools."""
 import ast
 from pathlib import Path
 
@@ -46,8 +46,11 @@ def test_the_engine_imports_neither_rerun_nor_lessons():
 def test_rerun_is_imported_by_the_recorder_alone():
     users = sorted(str(p.relative_to(ROOT)) for p in sorted((ROOT / "lessons").rglob("*.py"))
                    if "rerun" in _imports(p))
-    # lessons/tools/viewer.py drives the real viewer (headless screenshots), it writes no recording
-    assert users == ["lessons/app/recorder.py", "lessons/tools/viewer.py"], users
+    # the recorder, in parts: its geometry and energy plots, and the blueprint (layout) it sends;
+    # lessons/tools/viewer_processes.py drives the real viewer (headless screenshots), it writes
+    # no recording
+    assert users == ["lessons/app/blueprint.py", "lessons/app/recorder.py", "lessons/app/recorder_energies.py",
+                     "lessons/app/recorder_geometry.py", "lessons/tools/viewer_processes.py"], users
 
 
 def test_the_lessons_do_not_import_the_tools():

@@ -8,8 +8,10 @@ import time
 import numpy as np
 import pytest
 
-from lessons.app.recorder import (ENERGY_SAMPLES, FRAMES_PER_RUN, MIN_FRAMES_PER_RUN, PROGRESS_TICKS, NullRecorder,
-                                 Recorder, RunView, check_writable, strain_colors, summarize)
+from lessons.app.blueprint import PROGRESS_TICKS, RunView
+from lessons.app.recorder import FRAMES_PER_RUN, MIN_FRAMES_PER_RUN, NullRecorder, Recorder, check_writable, summarize
+from lessons.app.recorder_energies import ENERGY_SAMPLES
+from lessons.app.recorder_geometry import strain_colors
 from lessons.rod_waves import LESSON
 from tests.helpers import ROOT, run_stage
 

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 import rerun.blueprint as rrb
 
-from lessons.app.recorder import FOV_Y, summarize
+from lessons.app.blueprint import FOV_Y
+from lessons.app.recorder import summarize
 from lessons.app import registry
 
 SIZE_BUDGET = 20_000_000  # bytes, every default recording

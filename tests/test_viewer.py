@@ -5,7 +5,7 @@ For every tab of the root Tabs container, with the time cursor paused at the sta
 timeline the viewer opens on (what it shows first; CHECK_AT):
   * every view: the viewer reports no error for it;
   * 3D/2D scene views: the screenshot has more than SCENE_MIN_DRAWN of its pixels drawn (off
-    the background by more than lessons.tools.viewer.DRAWN_TOLERANCE; the grid does not count);
+    the background by more than lessons.tools.screenshots.DRAWN_TOLERANCE; the grid does not count);
   * TimeSeries/TextDocument/TextLog views: the recording holds their kind of data under the
     entities they show (scalars, text), read from the recording's schema;
 and the tab the viewer opens on has at least one scene view with something drawn.
@@ -25,7 +25,9 @@ from pathlib import Path
 import pytest
 
 from lessons.app import registry
-from lessons.tools.viewer import HeadlessViewer, ViewerUnavailable, drawn_fraction, missing, APT_INSTALL
+from lessons.tools.screenshots import drawn_fraction
+from lessons.tools.viewer import HeadlessViewer
+from lessons.tools.viewer_requirements import APT_INSTALL, ViewerUnavailable, missing
 
 pytestmark = pytest.mark.viewer
 

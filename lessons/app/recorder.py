@@ -1,4 +1,4 @@
-"""Rerun recordings of lesson runs. The only module that imports rerun.
+"""Rerun recordings of lesson runs.
 
 One :class:`Recorder` per lesson run writes one ``.rrd`` file through its own
 ``rr.RecordingStream`` (never the global stream). The recording is collected in memory and
@@ -8,18 +8,10 @@ the target (:mod:`lessons.app.outfile`): a crash, a kill or a full disk never le
 under the final name, and never destroys the earlier one. A run that did not complete is written
 to ``<stem>.partial.rrd`` and says so in the file (the ``run`` recording property).
 
-The recorder also plans what a student sees when the file is opened: it notes every stage, every
-run, whether a run drew geometry, where that geometry lies, which colour scale it used and
-whether it logged energies or events, and :meth:`Recorder.blueprint` turns that plan into the
-viewer's layout (sent with the file on :meth:`close`, and after every stage when streaming live):
-
-- one tab per stage, named "<N>. <title>", opening on the first stage that drew geometry;
-- in a tab, one scene view per run that drew geometry, named by the run's label (and its colour
-  key), with a camera placed from the run's bounding box (``top``: looking down on the x-y plane,
-  for rods and flat sheets; ``front``: looking along +y at a cloth hanging in the x-z plane;
-  ``outside``: an oblique eye outside a 3D body); beside it the run's energy plot;
-- the stage's narrative (and any other documents it logged), its event log when a run marked
-  something (a blow-up and its message), and its results table across the bottom.
+The recorder also plans what a student sees when the file is opened: the layout is made by
+:mod:`lessons.app.blueprint`, the geometry and the energy plots are drawn by
+:mod:`lessons.app.recorder_geometry` and :mod:`lessons.app.recorder_energies` (parts of
+:class:`Recorder`).
 
 Timelines:
     ``progress``  per mille of the run's span (its planned duration unless the stage gives one):
@@ -44,64 +36,27 @@ callers can skip building colours and arrays altogether.
 """
 from __future__ import annotations
 
-import math
 import os
 import sys
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from .blueprint import CAMERAS, PROGRESS_TICKS, RunPlan, RunView, StagePlan, lesson_blueprint
 from .outfile import OutputFile, OutputWriteError
+from .recorder_energies import RecorderEnergies
+from .recorder_geometry import RecorderGeometry
 
-__all__ = ["Recorder", "NullRecorder", "RunView", "strain_colors", "magnitude_colors", "check_writable",
-           "summarize", "run_status", "OutputWriteError", "PROGRESS_TICKS", "FRAMES_PER_RUN"]
+__all__ = ["Recorder", "NullRecorder", "check_writable", "summarize", "run_status", "OutputWriteError",
+           "FRAMES_PER_RUN"]
 
-PROGRESS_TICKS = 1000       # a run's span on the ``progress`` timeline
 FRAMES_PER_RUN = 200        # geometry frames a run draws at most (tens per period of a wave)
 MIN_FRAMES_PER_RUN = 20     # ... and at least, when its span allows
 RUN_GEOMETRY_BYTES = 900_000  # a run's geometry budget (bytes of arrays logged), which sets its frames
-ENERGY_SAMPLES = 2000       # energy samples per series and run at most (min and max per bin)
-RAW_ENERGY_SAMPLES = 4 * ENERGY_SAMPLES  # samples held before the bin width is fixed
-PLAYBACK_SECONDS = 20.0     # a run plays in this many seconds at the viewer's 1x speed
 LIVE_PORT = 9876            # the port of the viewer a live recorder spawns (Rerun's default)
-CAMERAS = ("top", "front", "outside")
 KEYS_DOC = "colour_keys"    # the stage's document listing every run's colour scale
-# the energy series: name and colour (the plots name them in their titles, with no legend)
-SERIES = {"kinetic": ("kinetic", (90, 200, 90)), "potential": ("potential", (90, 150, 255)),
-          "total": ("total", (235, 235, 235)), "relative": ("(E - E1) / |E1|", (255, 190, 60))}
-ENERGY_PLOT_NAME = "J: K green · W blue · E white"
-DRIFT_PLOT_NAME = "(E − E1) / |E1|: drift of the total energy"
-FOV_Y = math.radians(55.0)  # the 3D view's vertical field of view (the viewer's default)
-
-
-def strain_colors(strain: np.ndarray, scale: float | None = None) -> np.ndarray:
-    """Map signed strain to RGB (uint8): blue = compressed, white = rest, red = stretched.
-
-    ``scale`` is the strain that saturates the colour (default: max |strain|).
-    """
-    s = np.asarray(strain, dtype=np.float64)
-    if scale is None:
-        scale = float(np.max(np.abs(s))) if s.size else 1.0
-    t = np.clip(s / (scale if scale > 0 else 1.0), -1.0, 1.0)
-    out = np.empty(s.shape + (3,), dtype=np.float64)
-    pos, neg = t >= 0, t < 0
-    # white -> red for tension, white -> blue for compression
-    out[pos] = np.stack([np.ones(pos.sum()), 1 - t[pos], 1 - t[pos]], axis=-1)
-    out[neg] = np.stack([1 + t[neg], 1 + t[neg], np.ones(neg.sum())], axis=-1)
-    return (out * 255).astype(np.uint8)
-
-
-def magnitude_colors(value: np.ndarray, scale: float | None = None) -> np.ndarray:
-    """Map a non-negative quantity (e.g. energy density) to a dark-blue -> yellow ramp."""
-    v = np.asarray(value, dtype=np.float64)
-    if scale is None:
-        scale = float(np.max(v)) if v.size else 1.0
-    t = np.clip(v / (scale if scale > 0 else 1.0), 0.0, 1.0)[..., None]
-    lo, hi = np.array([40, 40, 120.0]), np.array([255, 220, 40.0])
-    return (lo + t * (hi - lo)).astype(np.uint8)
 
 
 def check_writable(path: str | os.PathLike) -> Path:
@@ -125,179 +80,6 @@ def check_writable(path: str | os.PathLike) -> Path:
                 pass
         raise
     return out.path
-
-
-# ------------------------------------------------------------------------------ the plan
-
-@dataclass
-class RunView:
-    """How a run is shown: its view's ``label``, the ``camera`` (one of CAMERAS; default: the
-    lesson's), what its energy plot shows (``"split"``: kinetic, potential and total; ``"drift"``:
-    the relative change of the total, for runs about conservation; None: no plot) and its ``span``
-    on the progress timeline in simulated seconds (default: the run's planned duration; give the
-    stage's longest run's to keep runs of different lengths in step)."""
-
-    label: str | None = None
-    camera: str | None = None
-    energy: str | None = "split"
-    span: float | None = None
-
-    def __post_init__(self):
-        if self.camera is not None and self.camera not in CAMERAS:
-            raise ValueError(f"camera must be one of {CAMERAS} (got {self.camera!r})")
-        if self.energy not in ("split", "drift", None):
-            raise ValueError(f"energy must be 'split', 'drift' or None (got {self.energy!r})")
-
-
-@dataclass
-class RunPlan:
-    """What one run recorded (filled in as it logs)."""
-
-    name: str
-    entity: str
-    label: str
-    camera: str
-    energy: str | None
-    span: float | None = None
-    n_steps: int | None = None
-    duration: float | None = None     # planned simulated time (n_steps x dt)
-    lo: np.ndarray | None = None      # bounding box of everything drawn
-    hi: np.ndarray | None = None
-    box0: tuple | None = None         # the first frame's box
-    frames: int = 0                   # geometry frames drawn
-    aspect: float | None = None       # width/height its camera was placed for (set by the layout)
-    frame_bytes: int = 0              # bytes of the first frame's arrays
-    has_energy: bool = False
-    has_events: bool = False
-    keys: dict = field(default_factory=dict)   # quantity -> colour key text
-    scales: dict = field(default_factory=dict)  # quantity -> fixed colour scale
-
-    @property
-    def has_geometry(self) -> bool:
-        return self.frames > 0
-
-
-@dataclass
-class StagePlan:
-    index: int
-    title: str
-    runs: list = field(default_factory=list)
-    docs: list = field(default_factory=list)   # markdown entities besides narrative/results
-    has_results: bool = False
-    events: bool = False                       # a run (or the stage) logged an event
-
-    @property
-    def scene_runs(self) -> list:
-        return [r for r in self.runs if r.has_geometry]
-
-    @property
-    def has_events(self) -> bool:
-        return self.events or any(r.has_events for r in self.runs)
-
-
-def _camera(run: RunPlan, aspect: float) -> rrb.EyeControls3D:
-    """An eye that frames the run's bounding box in a view of width/height ``aspect``: looking at
-    the box's centre from the camera's direction, as close as lets every corner of the box inside
-    the field of view (FOV_Y tall, aspect x as wide), with a 12% margin (the views come out a
-    little narrower than the layout assumes when the narrative column is wide)."""
-    lo, hi = run.lo, run.hi
-    centre = 0.5 * (lo + hi)
-    if run.camera == "top":
-        direction, up = np.array([0, 0, 1.0]), np.array([0, 1.0, 0])
-    elif run.camera == "front":
-        direction, up = np.array([0, -1.0, 0]), np.array([0, 0, 1.0])
-    else:  # outside: oblique, from the front-right and above
-        direction = np.array([0.75, -1.1, 0.7])
-        direction /= np.linalg.norm(direction)
-        up = np.array([0, 0, 1.0])
-    up_v = up - (up @ direction) * direction
-    up_v /= np.linalg.norm(up_v)
-    right = np.cross(-direction, up_v)
-    run.aspect = aspect
-    tan = math.tan(FOV_Y / 2)
-    corners = np.array(np.meshgrid(*zip(lo, hi))).reshape(3, -1).T - centre
-    # a corner o is seen at depth d - o.direction; it fits when |o.up| <= tan * depth and
-    # |o.right| <= aspect * tan * depth
-    need = np.maximum(np.abs(corners @ up_v) / tan, np.abs(corners @ right) / (tan * max(aspect, 1e-3)))
-    distance = float(np.max(1.12 * need + corners @ direction))
-    distance = max(distance, 1e-3 + float(np.max(corners @ direction)), 1e-6)
-    position = centre + distance * direction
-    return rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital, position=position.tolist(),
-                             look_target=centre.tolist(), eye_up=up.tolist())
-
-
-# Where the grid of scene views sits in a 1600 x 1000 window with the panels collapsed: about
-# 1150 x 620 pixels (the narrative column takes the rest of the width, the results the rest of
-# the height). Cameras are placed for the cells of that area.
-_GRID_W, _GRID_H = 1150.0, 580.0
-
-
-def _grid_shape(runs: list) -> tuple[int, bool]:
-    """(columns, strip): rods and other long flat things go one per row, their plot beside them."""
-    n = len(runs)
-    extents = [np.maximum(r.hi - r.lo, 1e-9) for r in runs]
-    strip = all(r.camera == "top" and e[0] > 3.0 * e[1] for r, e in zip(runs, extents))
-    if strip:
-        return 1, True
-    return (1 if n == 1 else 2 if n <= 6 else 3), False
-
-
-def stage_view(stage: StagePlan) -> rrb.Container:
-    """The tab of one stage (see the module docstring)."""
-    origin = f"/stage{stage.index}"
-    side = [rrb.TextDocumentView(origin=f"{origin}/narrative", name="narrative")]
-    side += [rrb.TextDocumentView(origin=f"{origin}/{d}", name=d.replace("_", " ")) for d in stage.docs]
-    if stage.has_events:
-        side.append(rrb.TextLogView(origin=origin, name="events (blow-ups and warnings)"))
-    side_panel = side[0] if len(side) == 1 else rrb.Vertical(*side, row_shares=[3] + [2] * (len(side) - 1))
-    runs = stage.scene_runs
-    results = rrb.TextDocumentView(origin=f"{origin}/results", name="results")
-    name = f"{stage.index}. {stage.title}"
-    if not runs:  # the results take the scenes' place
-        return rrb.Horizontal(results, side_panel, column_shares=[3, 1], name=name)
-    columns, strip = _grid_shape(runs)
-    rows = math.ceil(len(runs) / columns)
-    cell_w, cell_h = _GRID_W / columns, _GRID_H / rows
-    side_by_side = strip or cell_w > 1.8 * cell_h  # a wide cell: the plot beside the scene, not under it
-    cells = []
-    for run in runs:
-        has_plot = run.energy is not None and run.has_energy
-        scene_w = cell_w * (0.675 if (has_plot and side_by_side) else 1.0)
-        scene_h = cell_h * (0.7 if (has_plot and not side_by_side) else 1.0) - 24  # title bar
-        key = "; ".join(run.keys.values())
-        scene = rrb.Spatial3DView(origin=run.entity, name=run.label + (f" · {key}" if key else ""),
-                                  eye_controls=_camera(run, scene_w / max(scene_h, 1.0)),
-                                  line_grid=rrb.LineGrid3D(visible=run.camera == "outside"))
-        if not has_plot:
-            cells.append(scene)
-            continue
-        if run.energy == "drift":
-            plot = rrb.TimeSeriesView(origin=f"{run.entity}/energy_change", name=DRIFT_PLOT_NAME,
-                                      plot_legend=rrb.PlotLegend(visible=False))
-        else:
-            plot = rrb.TimeSeriesView(origin=f"{run.entity}/energy", name=ENERGY_PLOT_NAME,
-                                      plot_legend=rrb.PlotLegend(visible=False))
-        cells.append(rrb.Horizontal(scene, plot, column_shares=[2.7, 1.3]) if side_by_side
-                     else rrb.Vertical(scene, plot, row_shares=[2.3, 1]))
-    grid = rrb.Grid(*cells, grid_columns=columns)
-    left = rrb.Vertical(grid, results, row_shares=[2.4, 1])
-    return rrb.Horizontal(left, side_panel, column_shares=[3, 1], name=name)
-
-
-def lesson_blueprint(stages: list, active: int | None = None) -> rrb.Blueprint:
-    """The layout of a recording from its plan (a list of StagePlan): one tab per stage, opening
-    on stage ``active`` (default: the first that drew geometry), panels collapsed, the progress
-    timeline playing one run in PLAYBACK_SECONDS, looping."""
-    if active is None:
-        active = next((s.index for s in stages if s.scene_runs), stages[0].index if stages else None)
-    tabs = [stage_view(s) for s in stages]
-    active_tab = next((i for i, s in enumerate(stages) if s.index == active), 0)
-    return rrb.Blueprint(
-        rrb.Tabs(*tabs, active_tab=active_tab) if tabs else rrb.Tabs(),
-        rrb.TimePanel(timeline="progress", fps=PROGRESS_TICKS / PLAYBACK_SECONDS, play_state="playing",
-                      loop_mode="all", state="collapsed"),
-        rrb.BlueprintPanel(state="collapsed"), rrb.SelectionPanel(state="collapsed"),
-        collapse_panels=True)
 
 
 # ------------------------------------------------------------------------------ recorders
@@ -371,7 +153,7 @@ class NullRecorder:
         pass
 
 
-class Recorder(NullRecorder):
+class Recorder(RecorderGeometry, RecorderEnergies, NullRecorder):
     """Writes one lesson's recording to ``path`` (atomically, on :meth:`close`).
 
     ``title`` names the recording in the viewer; ``camera`` is the default camera of the lesson's
@@ -583,181 +365,7 @@ class Recorder(NullRecorder):
             run.lo = np.minimum(run.lo, near.min(axis=0))
             run.hi = np.maximum(run.hi, near.max(axis=0))
 
-    # --- colours ----------------------------------------------------------------
-    def colors(self, values, kind: str = "signed", quantity: str = "strain", scale: float | None = None):
-        """Colours of ``values`` on the run's fixed scale for ``quantity``: ``scale`` if given,
-        else the largest |value| the first time the run shows a non-zero value. ``kind``
-        "signed": blue (-scale) / white (0) / red (+scale); "magnitude": dark blue (0) to yellow
-        (scale). The scale goes into the run's view name as the colour key."""
-        v = np.asarray(values, dtype=np.float64)
-        run = self._run
-        fixed = run.scales.get(quantity) if run is not None else None
-        if fixed is None:
-            fixed = scale if scale is not None else (float(np.max(np.abs(v))) if v.size else 0.0)
-            if run is not None and fixed > 0:
-                run.scales[quantity] = fixed
-                run.keys[quantity] = (f"{quantity}: blue −{fixed:.2g} · white 0 · red +{fixed:.2g}"
-                                      if kind == "signed" else f"{quantity}: blue 0 → yellow {fixed:.2g}")
-        scale_ = fixed if fixed and fixed > 0 else 1.0
-        return strain_colors(v, scale_) if kind == "signed" else magnitude_colors(v, scale_)
-
-    # --- geometry ----------------------------------------------------------------
-    def points(self, entity: str, positions, colors=None, radii=None, labels=None) -> None:
-        pts = np.asarray(positions)
-        self._drew(pts, colors)
-        self._rec.log(self._path(entity), rr.Points3D(pts, colors=colors, radii=radii, labels=labels))
-
-    def labels(self, entity: str, positions, texts, colors=None) -> None:
-        """Text labels at points (e.g. the name of each of several bodies drawn side by side)."""
-        pts = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
-        self._drew(pts, frame=False)  # framed by the camera, but static: not a frame of the run
-        self._rec.log(self._path(entity), rr.Points3D(pts, labels=list(texts), radii=0.0,
-                                                      colors=colors if colors is not None else [[230, 230, 230]]),
-                      static=True)
-
-    def rod(self, x: np.ndarray, p: np.ndarray, strain_nodes: np.ndarray | None = None,
-            gain: float = 1.0, radius: float = 0.004, scale: float | None = None) -> None:
-        """Rod nodes at (p_i, 0, 0) (static) coloured by strain on the run's fixed scale, and the
-        displacement profile (p_i, gain*u_i, 0) drawn above them."""
-        n = x.size
-        pts = np.zeros((n, 3))
-        pts[:, 0] = p
-        colors = self.colors(strain_nodes, "signed", "strain", scale) if strain_nodes is not None else None
-        nodes = self._path("rod/nodes")
-        if nodes not in self._static_done:  # the nodes stay where they are drawn: only their colours change
-            self._rec.log(nodes, rr.Points3D(pts, radii=radius), static=True)
-            self._static_done.add(nodes)
-        self._drew(pts[[0, -1]], colors)
-        if colors is not None:
-            self._rec.log(nodes, rr.Points3D.from_fields(colors=colors))
-        prof = np.zeros((n, 3))
-        prof[:, 0] = p
-        prof[:, 1] = gain * (x - p)
-        prof = prof[_corners(prof[:, 0], prof[:, 1])]  # drawn the same, smaller
-        self._drew(prof)
-        self._rec.log(self._path("rod/displacement"),
-                      rr.LineStrips3D([prof], colors=[[230, 160, 30]], radii=radius * 0.6))
-
-    def line_strips(self, entity: str, strips, colors=None, radii=None) -> None:
-        pts = np.concatenate([np.asarray(s, dtype=np.float64).reshape(-1, 3) for s in strips]) if len(strips) else np.zeros((0, 3))
-        self._drew(pts, colors)
-        self._rec.log(self._path(entity), rr.LineStrips3D(strips, colors=colors, radii=radii))
-
-    def springs(self, x: np.ndarray, edges: np.ndarray, strain: np.ndarray | None = None,
-                entity: str = "springs", scale: float | None = None, radii=None) -> None:
-        """Springs as two-point line strips, coloured by strain on the run's fixed scale."""
-        segs = np.stack([x[edges[:, 0]], x[edges[:, 1]]], axis=1)
-        colors = self.colors(strain, "signed", "strain", scale) if strain is not None else None
-        self._drew(segs.reshape(-1, 3), colors)
-        self._rec.log(self._path(entity), rr.LineStrips3D(segs, colors=colors, radii=radii))
-
-    def mesh(self, x: np.ndarray, triangles: np.ndarray, vertex_colors=None, entity: str = "mesh") -> None:
-        """Triangle mesh; the index buffer is logged once as static, positions per frame."""
-        path = self._path(entity)
-        if path not in self._static_done:
-            self._rec.log(path, rr.Mesh3D.from_fields(triangle_indices=np.asarray(triangles, dtype=np.uint32)),
-                          static=True)
-            self._static_done.add(path)
-        self._drew(np.asarray(x), vertex_colors)
-        self._rec.log(path, rr.Mesh3D.from_fields(vertex_positions=np.asarray(x), vertex_colors=vertex_colors))
-
-    # --- scalars and text ---------------------------------------------------------
-    def _columns(self, steps: np.ndarray):
-        dt = self._energy_dt
-        run = self._run
-        times = dt * steps
-        if run is not None and run.span is not None:
-            ticks = np.rint(PROGRESS_TICKS * times / run.span).astype(np.int64)
-        else:
-            ticks = steps
-        return [rr.TimeColumn("progress", sequence=ticks), rr.TimeColumn("sim_time", duration=times),
-                rr.TimeColumn("step", sequence=steps)]
-
-    def scalar_series(self, entity: str, values: np.ndarray, steps: np.ndarray) -> None:
-        """Scalars at the run's ``steps``, sent as one column (styled once: SERIES)."""
-        values = np.asarray(values, dtype=np.float64)
-        if values.size == 0:
-            return
-        path = self._path(entity)
-        if path not in self._static_done:
-            name, color = SERIES.get(entity.rsplit("/", 1)[-1], (entity.rsplit("/", 1)[-1], (200, 200, 200)))
-            self._rec.log(path, rr.SeriesLines(colors=[color], names=[name], widths=[1.5],
-                                               aggregation_policy="minmax"), static=True)
-            self._static_done.add(path)
-        self._rec.send_columns(self._path(entity), indexes=self._columns(np.asarray(steps, dtype=np.int64)),
-                               columns=rr.Scalars.columns(scalars=values))
-
-    def energies(self, kinetic, potential, dt: float, first_step: int = 0) -> None:
-        """Kinetic and potential energy (J) after steps first_step+1, first_step+2, ...; at most
-        ENERGY_SAMPLES per series and run are kept (the lowest and highest of each bin)."""
-        kinetic = np.asarray(kinetic, dtype=np.float64)
-        potential = np.asarray(potential, dtype=np.float64)
-        if kinetic.size == 0:
-            return
-        if not self._energy_dt:
-            self._energy_dt = float(dt)
-        steps = first_step + 1 + np.arange(kinetic.size)
-        self._pending.append((steps, kinetic, potential))
-        self._pending_count += kinetic.size
-        if self._run is not None:
-            self._run.has_energy = True
-        # the first RAW_ENERGY_SAMPLES samples are kept as they are, so a run that stops early
-        # (a blow-up) is binned by the steps it ran, not by the steps it planned
-        if self._energy_width is None and self._pending_count <= RAW_ENERGY_SAMPLES:
-            return
-        self._flush_energies(final=False)
-
-    def _bin(self, last_step: int) -> int:
-        """Steps per bin: from the run's planned steps once it has run long, else from the steps
-        it ran (``last_step``)."""
-        if self._energy_width is None:
-            run = self._run
-            planned = run.n_steps if run is not None and run.n_steps else 0
-            n = planned if self._pending_count > RAW_ENERGY_SAMPLES else last_step
-            self._energy_width = max(1, math.ceil(2 * max(n, last_step) / ENERGY_SAMPLES))
-        return self._energy_width
-
-    def _flush_energies(self, final: bool) -> None:
-        if not self._pending:
-            if final:
-                self._send_energies(True)
-            return
-        steps = np.concatenate([p[0] for p in self._pending])
-        K = np.concatenate([p[1] for p in self._pending])
-        W = np.concatenate([p[2] for p in self._pending])
-        width = self._bin(int(steps[-1]))
-        bins = (steps - 1) // width
-        if not final:  # keep the last (maybe incomplete) bin for the next call
-            done = bins < bins[-1]
-            if not done.any():
-                self._pending = [(steps, K, W)]
-                return
-            self._pending = [(steps[~done], K[~done], W[~done])]
-            self._pending_count = int((~done).sum())
-            steps, K, W, bins = steps[done], K[done], W[done], bins[done]
-        else:
-            self._pending = []
-            self._pending_count = 0
-        total = K + W
-        if self._energy_first_total is None:
-            self._energy_first_total = float(total[0])
-        series = {"energy/kinetic": K, "energy/potential": W, "energy/total": total}
-        if self._run is not None and self._run.energy == "drift":
-            e0 = self._energy_first_total
-            series["energy_change/relative"] = (total - e0) / (abs(e0) if e0 else 1.0)
-        for entity, values in series.items():
-            keep = _envelope(bins, values) if width > 1 else np.arange(values.size)
-            self._outbox.setdefault(entity, []).append((steps[keep], values[keep]))
-        self._send_energies(final)
-
-    def _send_energies(self, final: bool) -> None:
-        """Send the kept samples in columns of at least 1000 (one chunk each, not one per call)."""
-        for entity, parts in list(self._outbox.items()):
-            if final or sum(len(p[0]) for p in parts) >= 1000:
-                self.scalar_series(entity, np.concatenate([p[1] for p in parts]),
-                                   np.concatenate([p[0] for p in parts]))
-                del self._outbox[entity]
-
+    # --- text ---------------------------------------------------------------------
     def markdown(self, entity: str, text: str, static: bool = True) -> None:
         """A markdown TextDocument under the current stage (not the current run)."""
         path = f"/{self._stage}/{entity}" if self._stage else f"/{entity}"
@@ -847,28 +455,6 @@ class Recorder(NullRecorder):
                 self.markdown("run_status", f"**This recording is partial**: {reason}. Stages completed: {done} "
                                             f"(asked: {', '.join(str(s) for s in status.get('stages_requested') or [])}).")
 
-
-def _corners(px: np.ndarray, py: np.ndarray, tol: float = 1e-4) -> np.ndarray:
-    """Indices of the points of the polyline (px, py) to draw: all but the inner points of
-    stretches at rest (|py| below ``tol`` times the curve's height at the point and both its
-    neighbours), so a rod at rest ahead of and behind a pulse is drawn by its ends alone."""
-    n = px.size
-    if n < 3:
-        return np.arange(n)
-    height = float(np.max(np.abs(py))) or 1.0
-    flat = np.abs(py) <= tol * height
-    inner = np.r_[False, flat[:-2] & flat[1:-1] & flat[2:], False]
-    return np.flatnonzero(~inner)
-
-
-def _envelope(bins: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """Indices of the lowest and highest value in each bin (in time order)."""
-    order = np.lexsort((values, bins))
-    b = bins[order]
-    first = np.r_[True, b[1:] != b[:-1]]
-    last = np.r_[b[1:] != b[:-1], True]
-    keep = np.union1d(order[first], order[last])
-    return keep
 
 
 def run_status(path: str | os.PathLike) -> dict | None:

@@ -15,7 +15,7 @@ import numpy as np
 
 from engine import mesh as M
 from engine.model import Model
-from lessons.app.recorder import RunView
+from lessons.app.blueprint import RunView
 from engine.stability import stable_dt_estimate
 from engine.waves import (ModeProbe, cauchy_born_tensor, christoffel, max_speed, phase_frequency,
                           relaxed_stiffness_2d, young_poisson)

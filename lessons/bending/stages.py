@@ -12,7 +12,7 @@ from engine.energies.bending import BendingEnergy, bridson_u_kernel, theta_gradi
 from engine.integrators import make_integrator
 from engine.fields import vec3_ndarray
 from engine.model import Model
-from lessons.app.recorder import RunView
+from lessons.app.blueprint import RunView
 from engine.scenes import cloth
 from engine.statics import solve_static
 

@@ -22,7 +22,7 @@ from .._budget import ANNOUNCE_S, WORK_BUDGET_S, refuse_over_budget, time_text
 from .._framework import Experiment, check_interrupt
 from .._measure import central_gradient, expect, modal_tracks, observation_steps, rod_node_strain, track_peaks
 from .._scene import progress_bar, simulate_method
-from lessons.app.recorder import RunView
+from lessons.app.blueprint import RunView
 
 # ------------------------------------------------------------------ the parameters' limits
 

@@ -27,7 +27,7 @@ from engine.integrators.kernels import EXPLICIT
 from engine.fields import vec3_ndarray
 from engine.model import Model
 from engine.scenes import Rod
-from lessons.app.recorder import RunView
+from lessons.app.blueprint import RunView
 from engine.statics import solve_static
 
 from .._budget import announce, refuse_over_budget

@@ -28,7 +28,9 @@ import sys
 import time
 from pathlib import Path
 
-from .viewer import HeadlessViewer, ViewerUnavailable, png_size
+from .screenshots import png_size
+from .viewer import HeadlessViewer
+from .viewer_requirements import ViewerUnavailable
 
 
 def _size(text: str) -> tuple[int, int]:

@@ -6,7 +6,8 @@ that display (``--renderer vulkan``: Mesa's lavapipe where there is no GPU), con
 ``rerun.experimental.ViewerClient`` to it and waits until the recording is loaded and a
 first frame is painted::
 
-    from lessons.tools.viewer import HeadlessViewer, drawn_fraction
+    from lessons.tools.screenshots import drawn_fraction
+    from lessons.tools.viewer import HeadlessViewer
 
     with HeadlessViewer("recordings/bending.rrd", size=(1600, 1000)) as v:
         v.set_time(None, "start")                   # pause (recordings open playing) and settle
@@ -38,89 +39,25 @@ viewer that stops answering is killed after ``call_timeout`` (ViewerTimeout) ins
 hanging the caller.
 """
 from __future__ import annotations
+from __future__ import annotations
 
 import copy
-import ctypes.util
-import glob
-import io
-import json
 import os
-import re
-import select
 import shutil
-import signal
-import socket
-import subprocess
-import sys
 import tempfile
-import threading
 import time
-import uuid
 from dataclasses import dataclass
 from pathlib import Path
 from typing import NamedTuple
 
-APT_INSTALL = ("apt-get install -y xvfb xauth mesa-vulkan-drivers libvulkan1 libxkbcommon-x11-0 "
-               "libgl1 libegl1")
-SCENE_CLASSES = ("3D", "2D")
-# A pixel is "drawn" when one of its channels differs from the background by more than this
-# (0-255). Measured on the viewer's dark theme: the 3D grid lines and the faint plot grid stay
-# below it (background 13, grid up to ~55: the lines' antialiased cores reach ~45 over the
-# background), meshes, lines, points and text are far above.
-DRAWN_TOLERANCE = 48
+from .screenshots import drawn_fraction
+from .viewer_processes import _SETTLE_SIZE, ViewerProcesses, _PortTaken, _Procs, _stop
+from .viewer_requirements import ViewerUnavailable, check_available
 
-_POINTER_MARGIN = 64  # pixels of X screen right of and below the window, where the pointer waits
-_SETTLE_SIZE = 480  # longest side of the pictures settle() compares (cheaper than full size)
+SCENE_CLASSES = ("3D", "2D")
 # Components a 3D/2D view does not draw (text and plots), for view_has_data.
 _NOT_SPATIAL = ("TextDocument:", "TextLog:", "Scalars:", "SeriesLines:", "SeriesPoints:", "BarChart:",
                 "RecordingInfo:", "RecordingProperties:")
-_ICD_DIRS = ("/usr/share/vulkan/icd.d", "/etc/vulkan/icd.d", "/usr/local/share/vulkan/icd.d")
-
-
-class ViewerUnavailable(RuntimeError):
-    """The headless viewer cannot run here; the message names what is missing and how to get it."""
-
-
-class ViewerTimeout(ViewerUnavailable):
-    """The viewer stopped answering (a call took longer than ``call_timeout``); it was killed."""
-
-
-class _Guarded:
-    """A ViewerClient whose every call has a deadline. ViewerClient's calls can block forever
-    when the other end never answers (seen: a port answered by something that is not a viewer),
-    so each call runs in a thread of its own; one that takes longer than ``seconds`` gets the
-    viewer killed (which ends the call when the viewer was the one not answering) and raises
-    ViewerTimeout, leaving the thread behind if it still hangs. Waiting this way also keeps
-    Ctrl-C working during a call."""
-
-    def __init__(self, client, seconds: float, on_timeout):
-        self._client, self._seconds, self._on_timeout = client, seconds, on_timeout
-
-    def __getattr__(self, name):
-        attr = getattr(self._client, name)
-        if not callable(attr):
-            return attr
-
-        def call(*args, **kwargs):
-            box = {}
-
-            def run():
-                try:
-                    box["result"] = attr(*args, **kwargs)
-                except BaseException as exc:  # handed to the caller
-                    box["error"] = exc
-            worker = threading.Thread(target=run, name=f"viewer-{name}", daemon=True)
-            worker.start()
-            worker.join(self._seconds)
-            if worker.is_alive():
-                self._on_timeout()
-                worker.join(5)
-                raise ViewerTimeout(f"the Rerun viewer did not answer {name}() within {self._seconds:.0f} s "
-                                    "and was stopped")
-            if "error" in box:
-                raise box["error"]
-            return box["result"]
-        return call
 
 
 class Tab(NamedTuple):
@@ -153,198 +90,8 @@ class ViewInfo:
                 if r.severity != "error"]
 
 
-# --- what is missing -------------------------------------------------------------------------
 
-def find_rerun(rerun_exe: str | os.PathLike | None = None) -> str | None:
-    """The viewer binary: the one given, else the native binary inside the ``rerun_cli`` package
-    (rather than its Python shim, which would sit between us and the viewer process), else
-    ``rerun`` next to this Python or on PATH."""
-    if rerun_exe is not None:
-        return shutil.which(str(rerun_exe)) or (str(rerun_exe) if Path(rerun_exe).is_file() else None)
-    if os.environ.get("RERUN_CLI_PATH") and Path(os.environ["RERUN_CLI_PATH"]).is_file():
-        return os.environ["RERUN_CLI_PATH"]
-    try:
-        import rerun_cli
-        native = Path(rerun_cli.__file__).with_name("rerun")
-        if native.is_file() and os.access(native, os.X_OK):
-            return str(native)
-    except ImportError:
-        pass
-    beside = Path(sys.executable).with_name("rerun")
-    if beside.is_file():
-        return str(beside)
-    return shutil.which("rerun")
-
-
-def vulkan_icds() -> list[str]:
-    """Installed Vulkan drivers (ICD manifests), from VK_ICD_FILENAMES/VK_DRIVER_FILES or the usual dirs."""
-    listed = os.environ.get("VK_DRIVER_FILES") or os.environ.get("VK_ICD_FILENAMES")
-    if listed:
-        return [p for p in listed.split(os.pathsep) if Path(p).is_file()]
-    return sorted(p for d in _ICD_DIRS for p in glob.glob(os.path.join(d, "*.json")))
-
-
-def missing(rerun_exe: str | os.PathLike | None = None) -> list[str]:
-    """What the headless viewer needs and this machine lacks (empty when all is there)."""
-    lacks = []
-    if shutil.which("Xvfb") is None:
-        lacks.append("Xvfb (the virtual X server; Debian package xvfb)")
-    if find_rerun(rerun_exe) is None:
-        lacks.append("the rerun viewer binary (pip package rerun-sdk)")
-    if ctypes.util.find_library("vulkan") is None:
-        lacks.append("the Vulkan loader libvulkan.so.1 (Debian package libvulkan1)")
-    if not vulkan_icds():
-        lacks.append("a Vulkan driver: no ICD manifest in " + ", ".join(_ICD_DIRS)
-                     + " (Mesa's software driver lavapipe: Debian package mesa-vulkan-drivers)")
-    if ctypes.util.find_library("xkbcommon-x11") is None:
-        lacks.append("libxkbcommon-x11 (Debian package libxkbcommon-x11-0)")
-    return lacks
-
-
-def check_available(rerun_exe: str | os.PathLike | None = None) -> None:
-    lacks = missing(rerun_exe)
-    if lacks:
-        raise ViewerUnavailable("cannot run the Rerun viewer headless: missing " + "; ".join(lacks)
-                                + f". Install with: {APT_INSTALL}")
-
-
-# --- pictures --------------------------------------------------------------------------------
-
-def decode_png(png: bytes):
-    """RGB pixels (H x W x 3 uint8 numpy array) of a PNG."""
-    import numpy as np
-    from PIL import Image  # Pillow comes with matplotlib, a dependency of the project
-    with Image.open(io.BytesIO(png)) as im:
-        return np.asarray(im.convert("RGB"))
-
-
-def background_colour(rgb) -> tuple[int, int, int]:
-    """The most common colour of the picture: the view's background."""
-    import numpy as np
-    flat = rgb.reshape(-1, 3)
-    packed = (flat[:, 0].astype(np.uint32) << 16) | (flat[:, 1].astype(np.uint32) << 8) | flat[:, 2]
-    values, counts = np.unique(packed, return_counts=True)
-    top = int(values[counts.argmax()])
-    return (top >> 16) & 255, (top >> 8) & 255, top & 255
-
-
-def drawn_fraction(png: bytes, tolerance: int = DRAWN_TOLERANCE, margin: int = 2) -> float:
-    """Fraction of the pixels (``margin`` pixels at each border left out: the view's frame)
-    whose colour differs from the dominant (background) colour by more than ``tolerance`` in
-    some channel. An empty 3D view (background and grid) gives about 0; geometry gives its
-    share of the picture."""
-    import numpy as np
-    rgb = decode_png(png)
-    if margin and rgb.shape[0] > 2 * margin and rgb.shape[1] > 2 * margin:
-        rgb = rgb[margin:-margin, margin:-margin]
-    if rgb.size == 0:
-        return 0.0
-    bg = np.array(background_colour(rgb), dtype=np.int16)
-    diff = np.abs(rgb.astype(np.int16) - bg).max(axis=2)
-    return float((diff > tolerance).mean())
-
-
-def png_size(png: bytes) -> tuple[int, int]:
-    """(width, height) from the PNG header."""
-    if png[:8] != b"\x89PNG\r\n\x1a\n":
-        raise ValueError("not a PNG")
-    return int.from_bytes(png[16:20], "big"), int.from_bytes(png[20:24], "big")
-
-
-# --- the viewer ------------------------------------------------------------------------------
-
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _stop(proc: subprocess.Popen | None, grace: float = 5.0) -> None:
-    """SIGTERM the process's group (it was started in a session of its own), then SIGKILL, and reap it."""
-    if proc is None:
-        return
-    for sig, wait in ((signal.SIGTERM, grace), (signal.SIGKILL, grace)):
-        if proc.poll() is not None:
-            break
-        try:
-            os.killpg(proc.pid, sig)
-        except (ProcessLookupError, PermissionError):
-            try:
-                proc.send_signal(sig)
-            except ProcessLookupError:
-                pass
-        try:
-            proc.wait(timeout=wait)
-        except subprocess.TimeoutExpired:
-            continue
-    try:
-        os.killpg(proc.pid, signal.SIGKILL)  # anything the process left behind in its group
-    except (ProcessLookupError, PermissionError):
-        pass
-    if proc.poll() is None:
-        proc.wait(timeout=grace)
-
-
-def _die_with_parent() -> None:
-    """In the child before exec: get SIGTERM when the process that started it dies (Linux), so
-    that a killed test run leaves no viewer or Xvfb behind. (Strictly: when the thread that
-    started it ends, so start the viewer from a thread that outlives its use.)"""
-    try:
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(1, signal.SIGTERM, 0, 0, 0)  # PR_SET_PDEATHSIG
-    except Exception:
-        pass
-
-
-def _park_pointer(display: str, x: int, y: int) -> bool:
-    """Move the X pointer of ``display`` to (x, y) with libX11 (best effort)."""
-    name = ctypes.util.find_library("X11")
-    if name is None:
-        return False
-    try:
-        x11 = ctypes.CDLL(name)
-        x11.XOpenDisplay.restype = ctypes.c_void_p
-        x11.XOpenDisplay.argtypes = [ctypes.c_char_p]
-        x11.XDefaultRootWindow.restype = ctypes.c_ulong
-        x11.XDefaultRootWindow.argtypes = [ctypes.c_void_p]
-        x11.XWarpPointer.argtypes = [ctypes.c_void_p, ctypes.c_ulong, ctypes.c_ulong, ctypes.c_int, ctypes.c_int,
-                                     ctypes.c_uint, ctypes.c_uint, ctypes.c_int, ctypes.c_int]
-        x11.XSync.argtypes = [ctypes.c_void_p, ctypes.c_int]
-        x11.XCloseDisplay.argtypes = [ctypes.c_void_p]
-        dpy = x11.XOpenDisplay(display.encode())
-        if not dpy:
-            return False
-        try:
-            x11.XWarpPointer(dpy, 0, x11.XDefaultRootWindow(dpy), 0, 0, 0, 0, x, y)
-            x11.XSync(dpy, 0)
-        finally:
-            x11.XCloseDisplay(dpy)
-        return True
-    except (OSError, AttributeError):
-        return False
-
-
-_ANSI = re.compile(r"\x1b\[[0-9;]*[A-Za-z]")
-
-
-def _tail(path: Path, lines: int = 15) -> str:
-    """The last lines of a log, colour codes removed; its ERROR/panic lines first if they are earlier."""
-    try:
-        text = [_ANSI.sub("", line) for line in path.read_text(errors="replace").splitlines()]
-    except OSError:
-        return ""
-    last = text[-lines:]
-    errors = [line for line in text[:-lines] if re.search(r"\bERROR\b|panicked|error:", line)][-lines:]
-    return "\n".join(errors + (["..."] if errors else []) + last)
-
-
-@dataclass
-class _Procs:
-    xvfb: subprocess.Popen | None = None
-    viewer: subprocess.Popen | None = None
-
-
-class HeadlessViewer:
+class HeadlessViewer(ViewerProcesses):
     """The Rerun viewer on a recording, on a private X display; use as a context manager.
 
     ``size``: window size in logical points (= pixels here: the display's scale is 1); the Xvfb
@@ -424,142 +171,6 @@ class HeadlessViewer:
         except Exception:
             pass
 
-    def _start_xvfb(self) -> None:
-        # The screen is a little larger than the window (which the viewer puts at 0,0) and the
-        # pointer is parked in that margin: Xvfb starts it mid-screen, where egui would take it
-        # for a hover (plot legends and tooltips in the pictures).
-        w, h = self.size[0] + _POINTER_MARGIN, self.size[1] + _POINTER_MARGIN
-        read_fd, write_fd = os.pipe()
-        log = open(self._scratch / "xvfb.log", "wb")
-        try:
-            self._procs.xvfb = subprocess.Popen(
-                ["Xvfb", "-displayfd", str(write_fd), "-screen", "0", f"{w}x{h}x24", "-nolisten", "tcp",
-                 "-noreset"],
-                stdin=subprocess.DEVNULL, stdout=log, stderr=log, pass_fds=(write_fd,), start_new_session=True,
-                preexec_fn=_die_with_parent if sys.platform.startswith("linux") else None)
-        except OSError as exc:
-            os.close(read_fd)
-            raise ViewerUnavailable(f"cannot start Xvfb ({exc}). Install with: {APT_INSTALL}") from exc
-        finally:
-            os.close(write_fd)
-            log.close()
-        number = b""
-        deadline = time.monotonic() + 20
-        try:
-            while not number.endswith(b"\n") and time.monotonic() < deadline:
-                ready, _, _ = select.select([read_fd], [], [], 0.2)
-                if ready:
-                    chunk = os.read(read_fd, 64)
-                    if not chunk:
-                        break
-                    number += chunk
-                elif self._procs.xvfb.poll() is not None:
-                    break
-        finally:
-            os.close(read_fd)
-        if not number.strip().isdigit():
-            raise ViewerUnavailable("Xvfb did not start: " + (_tail(self._scratch / "xvfb.log") or "no output")
-                                    + f". Install with: {APT_INSTALL}")
-        self.display = ":" + number.strip().decode()
-        _park_pointer(self.display, self.size[0] + _POINTER_MARGIN // 2, self.size[1] + _POINTER_MARGIN // 2)
-
-    def _viewer_env(self) -> dict:
-        env = dict(os.environ)
-        home = self._scratch / "home"
-        for sub in ("data", "config", "cache", "runtime"):
-            (home / sub).mkdir(parents=True, exist_ok=True)
-        (home / "runtime").chmod(0o700)
-        # A fresh home would make every run the viewer's "first session" (with its analytics
-        # banner); say analytics are off instead, as `rerun analytics disable` writes it.
-        (home / "config" / "rerun").mkdir(exist_ok=True)
-        config = home / "config" / "rerun" / "analytics.json"
-        config.write_text(json.dumps({"analytics_enabled": False, "analytics_id": uuid.uuid4().hex, "metadata": {},
-                                      "config_file_path": str(config),
-                                      "data_dir_path": str(home / "data" / "rerun" / "analytics")}))
-        env.update(DISPLAY=self.display, HOME=str(home), XDG_DATA_HOME=str(home / "data"),
-                   XDG_CONFIG_HOME=str(home / "config"), XDG_CACHE_HOME=str(home / "cache"),
-                   XDG_RUNTIME_DIR=str(home / "runtime"), NO_COLOR="1")
-        for var in ("WAYLAND_DISPLAY", "RERUN_CLI_PATH"):
-            env.pop(var, None)
-        return env
-
-    def _start_viewer(self) -> None:
-        exe = find_rerun(self.rerun_exe)
-        self.port = _free_port()
-        w, h = self.size
-        self._viewer_log = self._scratch / f"viewer-{self.port}.log"
-        with open(self._viewer_log, "wb") as log:
-            self._procs.viewer = subprocess.Popen(
-                [exe, "--port", str(self.port), "--renderer", self.renderer, "--window-size", f"{w}x{h}",
-                 "--hide-welcome-screen", str(self.path)],
-                stdin=subprocess.DEVNULL, stdout=log, stderr=log, env=self._viewer_env(),
-                cwd=self._scratch, start_new_session=True,
-                preexec_fn=_die_with_parent if sys.platform.startswith("linux") else None)
-        self.client = None  # connected in _wait_loaded, once the viewer's server is up
-
-    def _kill_viewer(self) -> None:
-        """SIGKILL the viewer's process group (from the watchdog thread; close() reaps it)."""
-        proc = self._procs.viewer
-        if proc is not None:
-            try:
-                os.killpg(proc.pid, signal.SIGKILL)
-            except (ProcessLookupError, PermissionError):
-                pass
-
-    def _viewer_died(self) -> None:
-        proc = self._procs.viewer
-        if proc is not None and proc.poll() is not None:
-            log = _tail(self._viewer_log, 25)
-            # Someone took the port between _free_port() and the viewer binding it: the viewer
-            # then streams the recording to whatever listens there and exits 0.
-            if re.search(r"already in use|already listening at this address|Another viewer is already running", log):
-                raise _PortTaken()
-            hint = ""
-            if re.search(r"No graphics adapter|Adapter selection failed|enumerate_adapters|ERROR_INCOMPATIBLE_DRIVER",
-                         log):
-                hint = (" (no usable Vulkan adapter: install Mesa's lavapipe, package mesa-vulkan-drivers, "
-                        "or a GPU driver)")
-            raise ViewerUnavailable(f"the Rerun viewer exited with code {proc.returncode}{hint}. "
-                                    f"Its last output:\n{log}\nInstall with: {APT_INSTALL}")
-
-    def _wait_loaded(self, deadline: float) -> None:
-        """Until the server answers, the recording is in, nothing is loading, the blueprint
-        has its viewport, and a first frame is painted."""
-        from rerun.experimental import ViewerClient
-        last_error = "no answer"
-        while True:
-            self._viewer_died()
-            if time.monotonic() > deadline:
-                raise ViewerUnavailable(f"the Rerun viewer did not load {self.path} within {self.timeout:.0f} s "
-                                        f"({last_error}). Its last output:\n{_tail(self._viewer_log)}")
-            try:
-                if self.client is None:  # connecting fails ("transport error") until the server is up
-                    self.client = _Guarded(ViewerClient, self.call_timeout, self._kill_viewer).connect(
-                        f"rerun+http://127.0.0.1:{self.port}/proxy")
-                    self.client = _Guarded(self.client, self.call_timeout, self._kill_viewer)
-                state = self.client.get_state()
-                rec = next((r for r in state.recordings if r.store_id == state.active_recording), None)
-                if state.loading:
-                    last_error = "still loading: " + "; ".join(s.status for s in state.loading)
-                elif rec is None:
-                    last_error = "no recording open yet"
-                elif not any(t.end is not None for t in rec.timelines):
-                    last_error = "the recording has no data yet"
-                else:
-                    bp = self.client.get_blueprint(store_id=rec.store_id).blueprint
-                    if "/viewport" not in bp:
-                        last_error = "no blueprint yet"
-                    else:
-                        self.store_id = rec.store_id
-                        break
-            except ViewerTimeout:
-                raise
-            except Exception as exc:  # the server is not up yet
-                last_error = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
-            time.sleep(0.25)
-        self._viewer_died()
-        self.client.take_screenshot(max_size=_SETTLE_SIZE)  # returns once a frame is painted
-        self._viewer_died()
 
     # -- state --
 
@@ -822,6 +433,7 @@ class HeadlessViewer:
         return self.settled
 
 
+
 def _steady(take, deadline: float, tries: int = 10) -> tuple[bytes, bool]:
     """Take pictures until two in a row are identical: (the last one, whether they were)."""
     previous = take()
@@ -847,6 +459,3 @@ def _query_roots(query: str, origin: str) -> list[str]:
         roots.append(line if line.startswith("/") else "/" + line)
     return roots or [origin or "/"]
 
-
-class _PortTaken(Exception):
-    pass
