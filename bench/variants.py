@@ -20,7 +20,7 @@ as in STREAM's "copy").
 import taichi as ti
 
 from engine.energies.bending import _energy_terms, _frame, _theta, _theta_grad
-from engine.energies.springs import edge_array
+from engine.energies.springs import edge_array, spring_force
 from engine.fields import scalar_array, vec3_array
 
 hinge_array = ti.types.ndarray(dtype=ti.i32, ndim=2)
@@ -29,13 +29,8 @@ f64_array = ti.types.ndarray(dtype=ti.f64, ndim=1)
 
 @ti.func
 def _spring_force(x: ti.template(), edges: ti.template(), L: ti.template(), c: ti.template(), e):
-    # (S2): force on edges[e][0]
-    d = x[edges[e][0]] - x[edges[e][1]]
-    l = d.norm()
-    fe = ti.math.vec3(0.0)
-    if l > 0.0:
-        fe = -(c[e] / L[e]) * (1.0 / L[e] - 1.0 / l) * d
-    return fe
+    # (S2): force on edges[e][0] (engine.energies.springs.spring_force)
+    return spring_force(x[edges[e][0]] - x[edges[e][1]], 1.0 / L[e], c[e] / L[e])
 
 
 @ti.kernel

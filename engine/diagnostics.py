@@ -14,16 +14,14 @@ reproducible across thread counts.
 import numpy as np
 import taichi as ti
 
+from engine.energies import masses
 from engine.fields import scalar_array, vec3_array
 from engine.model import Model, State
 
 
 @ti.kernel
 def kinetic_energy_kernel(v: vec3_array, mass: scalar_array) -> float:
-    T = 0.0
-    for i in range(v.shape[0]):
-        T += 0.5 * mass[i] * v[i].dot(v[i])
-    return T
+    return masses.kinetic_energy(v, mass)
 
 
 @ti.kernel

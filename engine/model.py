@@ -20,6 +20,7 @@ import numpy as np
 import taichi as ti
 
 from engine.energies.base import Energy
+from engine.energies.masses import add_gravity_potential
 from engine.energies.springs import SpringEnergy
 from engine.errors import ModelError
 from engine.fields import (copy_vec3, float_dtype, per_item, scalar_array, scalar_ndarray, vec3_array, vec3_ndarray,
@@ -33,12 +34,8 @@ from engine.fields import (copy_vec3, float_dtype, per_item, scalar_array, scala
 @ti.kernel
 def gravity_energy_kernel(x: vec3_array, mass: scalar_array, inv_mass: scalar_array,
                           g: ti.math.vec3) -> float:
-    # W_g = -sum_{free i} m_i g . x_i
-    W = 0.0
-    for i in range(x.shape[0]):
-        if inv_mass[i] > 0.0:
-            W -= mass[i] * g.dot(x[i])
-    return W
+    # W_g = -sum_{free i} m_i g . x_i (engine.energies.masses)
+    return add_gravity_potential(0.0, x, mass, inv_mass, g)
 
 
 @ti.kernel

@@ -35,6 +35,10 @@ Forces and Hessian products are per-vertex gathers over a CSR incidence (for ver
 loop over incident edges): deterministic, no float atomics.  The CSR arrays store, per
 incidence, the other endpoint, the edge id and copies of 1/L_e and c_e/L_e so that the
 gather streams through memory.
+
+(S1) and (S2) of one spring are written once, as the ti.funcs :func:`spring_energy` and
+:func:`spring_force`; the kernels here, the fused steps (engine.integrators.kernels) and the
+benchmark's variants (bench/variants.py) call them.
 """
 
 import numpy as np
@@ -50,6 +54,27 @@ from engine.fields import (edge_array, float_dtype, int_array, int_ndarray, mat3
 # --------------------------------------------------------------------------------------------
 # Taichi functions and kernels
 # --------------------------------------------------------------------------------------------
+
+@ti.func
+def spring_energy(d, L, c):
+    """(S1) W_e = 1/2 c (l/L - 1)^2 (J) of one spring with edge vector d = x_i - x_j (m, l = |d|),
+    rest length L (m) and coefficient c (J: c = k L for the 1D spring, E A for an area-scaled one)."""
+    l = d.norm()
+    strain = l / L - 1.0
+    return 0.5 * c * strain * strain
+
+
+@ti.func
+def spring_force(d, inv_L, c_over_L):
+    """(S2) the force (N) on the end i of one spring with edge vector d = x_i - x_j (m), given 1/L
+    (1/m) and c/L (N): -(c/L)(l/L - 1) d/l, written as -(c/L)(1/L - 1/l) d (one division); the
+    force on j is its negative. Zero for l = 0. Every kernel that needs a spring force calls this."""
+    t = ti.math.vec3(0.0)
+    l = d.norm()
+    if l > 0.0:
+        t = c_over_L * (inv_L - 1.0 / l) * d
+    return -t
+
 
 @ti.func
 def spring_block(d: ti.math.vec3, inv_L: float, c_over_L: float, psd: ti.i32) -> ti.math.mat3:
@@ -81,9 +106,7 @@ def spring_energy_kernel(x: vec3_array, edges: edge_array, L: scalar_array, c: s
     # (S1) W = sum_e 1/2 c_e (l_e/L_e - 1)^2
     W = 0.0
     for e in range(edges.shape[0]):
-        l = (x[edges[e][0]] - x[edges[e][1]]).norm()
-        strain = l / L[e] - 1.0
-        W += 0.5 * c[e] * strain * strain
+        W += spring_energy(x[edges[e][0]] - x[edges[e][1]], L[e], c[e])
     return W
 
 
@@ -92,23 +115,17 @@ def spring_edge_energies_kernel(x: vec3_array, edges: edge_array, L: scalar_arra
                                 out: scalar_array):
     # (S1) per edge, e.g. for colouring springs by stored energy
     for e in range(edges.shape[0]):
-        l = (x[edges[e][0]] - x[edges[e][1]]).norm()
-        strain = l / L[e] - 1.0
-        out[e] = 0.5 * c[e] * strain * strain
+        out[e] = spring_energy(x[edges[e][0]] - x[edges[e][1]], L[e], c[e])
 
 
 @ti.func
 def spring_gather(x: ti.template(), i, offsets: ti.template(), inc_other: ti.template(),
                   inc_inv_L: ti.template(), inc_c_over_L: ti.template()):
-    """(S2) gathered for vertex i: sum_{e ~ i} -(c_e/L_e)(l/L_e - 1)(x_i - x_j)/l, written as
-    -(c_e/L_e)(1/L_e - 1/l)(x_i - x_j) (one division per incidence)."""
+    """(S2) gathered for vertex i: sum_{e ~ i} of :func:`spring_force`, by ascending neighbour."""
     acc = ti.math.vec3(0.0)
     xi = x[i]
     for k in range(offsets[i], offsets[i + 1]):
-        d = xi - x[inc_other[k]]
-        l = d.norm()
-        if l > 0.0:
-            acc -= inc_c_over_L[k] * (inc_inv_L[k] - 1.0 / l) * d
+        acc += spring_force(xi - x[inc_other[k]], inc_inv_L[k], inc_c_over_L[k])
     return acc
 
 

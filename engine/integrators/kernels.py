@@ -38,7 +38,8 @@ import taichi as ti
 
 from engine.energies.axial import axial_force, axial_potential
 from engine.energies.bending import _energy_terms, _theta, _theta_grad
-from engine.energies.springs import spring_gather
+from engine.energies.masses import add_gravity_potential, kinetic_energy
+from engine.energies.springs import spring_energy, spring_force, spring_gather
 from engine.solvers.thomas import axial_backward_euler
 from engine.fields import edge_array, int_array, scalar_array, vec3_array
 
@@ -230,17 +231,6 @@ CLOTH_SE, CLOTH_VV, CLOTH_VV_BEGIN = 0, 1, 2
 
 
 @ti.func
-def _spring_term(d, c_over_L, inv_L):
-    """(S2) of one spring seen from the end the edge vector d = x_i - x_j starts at: the term that
-    :func:`engine.energies.springs.spring_gather` subtracts (zero for l = 0, as there)."""
-    t = ti.math.vec3(0.0)
-    l = d.norm()
-    if l > 0.0:
-        t = c_over_L * (inv_L - 1.0 / l) * d
-    return t
-
-
-@ti.func
 def _hinge_forces(x: ti.template(), v0, v1, w0, w1, k, theta_bar, mode):
     """-dW_h/dx of one hinge on its slots (v0, v1, w0, w1): the arithmetic of
     :func:`engine.energies.bending.hinge_force_vectors` (frame, (A1), (W1)/(W2), (G1)-(G3))."""
@@ -301,7 +291,7 @@ def _cloth_block(b, x: ti.template(), v: ti.template(), w: ti.template(), I: ti.
         acc = ti.math.vec3(0.0)
         xi = x[i]
         for q in range(I[in_off + p], I[in_off + p + 1]):
-            acc -= _spring_term(xi - x[I[in_j + q]], F[f_in + 2 * q], F[f_in + 2 * q + 1])
+            acc += spring_force(xi - x[I[in_j + q]], F[f_in + 2 * q + 1], F[f_in + 2 * q])
         w[i] = acc
     if ti.static(with_hinges):
         hv = I[H_HV]
@@ -326,10 +316,10 @@ def _cloth_block(b, x: ti.template(), v: ti.template(), w: ti.template(), I: ti.
         xi = x[i]
         for q in range(I[up_off + i], I[up_off + i + 1]):
             c = I[up_c + q]
-            t = _spring_term(xi - x[c], F[f_up + 2 * q], F[f_up + 2 * q + 1])
-            acc -= t
+            t = spring_force(xi - x[c], F[f_up + 2 * q + 1], F[f_up + 2 * q])
+            acc += t
             if c < hi:
-                w[c] = w[c] + t
+                w[c] = w[c] - t
         f = ti.math.vec3(0.0)
         f += acc
         w[i] = ti.math.vec3(0.0)
@@ -461,29 +451,8 @@ def _potential(x: ti.template(), edges: ti.template(), L: ti.template(), c: ti.t
     # W = sum_e 1/2 c_e (l_e/L_e - 1)^2 (springs (S1)), plus W_g = -sum_{free i} m_i g . x_i; serial sums
     W = 0.0
     for e in range(n_edges):
-        l = (x[edges[e][0]] - x[edges[e][1]]).norm()
-        strain = l / L[e] - 1.0
-        W += 0.5 * c[e] * strain * strain
-    for i in range(x.shape[0]):
-        if inv_mass[i] > 0.0:
-            W -= mass[i] * g.dot(x[i])
-    return W
-
-
-@ti.func
-def _kinetic(v: ti.template(), mass: ti.template()) -> float:
-    T = 0.0
-    for i in range(v.shape[0]):
-        T += 0.5 * mass[i] * v[i].dot(v[i])
-    return T
-
-
-@ti.func
-def _axial_kinetic(v: ti.template(), m: ti.template()) -> float:
-    K = 0.0
-    for i in range(v.shape[0]):
-        K += 0.5 * m[i] * v[i] * v[i]
-    return K
+        W += spring_energy(x[edges[e][0]] - x[edges[e][1]], L[e], c[e])
+    return add_gravity_potential(W, x, mass, inv_mass, g)
 
 
 _buffers: dict[int, tuple] = {}
@@ -555,7 +524,7 @@ def many_steps(x: vec3_array, v: vec3_array, f: vec3_array, a: vec3_array,
             _spring_forces(x, offsets, inc_other, inc_inv_L, inc_c_over_L, f)
             for i in range(n):
                 update(method, STEP, i, x, v, f[i], a, inv_mass, g, dt, ti.math.vec3(0.0))
-        if _record(kin, pot, s, _kinetic(v, mass), _potential(x, edges, L, c, n_edges, mass, inv_mass, g), bound):
+        if _record(kin, pot, s, kinetic_energy(v, mass), _potential(x, edges, L, c, n_edges, mass, inv_mass, g), bound):
             done = s
             break
     return done
@@ -591,7 +560,7 @@ def axial_steps(x: scalar_array, v: scalar_array, a: scalar_array, h: scalar_arr
                 Cp[i] = axial_force(x, h, E, i, n)
             for i in range(n):
                 update(method, STEP, i, x, v, Cp[i], a, inv_m, 0.0, dt, 0.0)
-        if _record(kin, pot, s, _axial_kinetic(v, m), axial_potential(x, h, E, n), bound):
+        if _record(kin, pot, s, kinetic_energy(v, m), axial_potential(x, h, E, n), bound):
             done = s
             break
     return done
