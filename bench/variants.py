@@ -1,10 +1,11 @@
 """Bench-only Taichi kernels: the force-kernel variants and the streaming-copy bandwidth probe.
 
 Force-kernel variants, against the engine's data (engine/energies/springs.py, bending.py), the
-same formulas as the engine:
+engine's own formulas (its ti.funcs :func:`engine.energies.springs.spring_force` and
+:func:`engine.energies.hinge.hinge_forces`):
 
   springs (S2)   f_i += -(c_e/L_e)(1/L_e - 1/l_e)(x_i - x_j),  f_j -= the same
-  bending        f_slot += -W'(theta) dtheta/dx_slot   (W1/W2, (G1)-(G3); engine ti.funcs)
+  bending        f_slot += -W'(theta) dtheta/dx_slot   (W1/W2, (G1)-(G3))
 
 * ``atomic``: one parallel loop over the elements, scattered with float atomics (on the CPU a
   compare-and-swap loop per component; results not bitwise reproducible with 2 threads).
@@ -19,7 +20,7 @@ as in STREAM's "copy").
 """
 import taichi as ti
 
-from engine.energies.bending import _energy_terms, _frame, _theta, _theta_grad
+from engine.energies.hinge import hinge_forces, row_frame
 from engine.energies.springs import edge_array, spring_force
 from engine.fields import scalar_array, vec3_array
 
@@ -54,11 +55,10 @@ def spring_forces_serial(x: vec3_array, edges: edge_array, L: scalar_array, c: s
 def hinge_forces_atomic(x: vec3_array, hinges: hinge_array, k: scalar_array, theta_bar: scalar_array,
                         mode: ti.i32, f: vec3_array):
     for h in range(hinges.shape[0]):
-        e, a0, a1 = _frame(x, hinges, h)
-        W, W1, W2 = _energy_terms(_theta(e, a0, a1), k[h], theta_bar[h], mode)
-        g = _theta_grad(e, a0, a1)
+        e, a0, a1 = row_frame(x, hinges, h)
+        fh = hinge_forces(e, a0, a1, k[h], theta_bar[h], mode)
         for a in ti.static(range(4)):
-            ti.atomic_add(f[hinges[h, a]], -W1 * g[a])
+            ti.atomic_add(f[hinges[h, a]], fh[a])
 
 
 @ti.kernel
@@ -66,11 +66,10 @@ def hinge_forces_serial(x: vec3_array, hinges: hinge_array, k: scalar_array, the
                         mode: ti.i32, f: vec3_array):
     ti.loop_config(serialize=True)
     for h in range(hinges.shape[0]):
-        e, a0, a1 = _frame(x, hinges, h)
-        W, W1, W2 = _energy_terms(_theta(e, a0, a1), k[h], theta_bar[h], mode)
-        g = _theta_grad(e, a0, a1)
+        e, a0, a1 = row_frame(x, hinges, h)
+        fh = hinge_forces(e, a0, a1, k[h], theta_bar[h], mode)
         for a in ti.static(range(4)):
-            f[hinges[h, a]] += -W1 * g[a]
+            f[hinges[h, a]] += fh[a]
 
 
 @ti.kernel

@@ -167,17 +167,17 @@ def test_models_without_springs_first_take_the_generic_path():
 
 
 def test_the_hinge_angle_is_atan2_to_an_ulp():
-    """Both paths take the hinge angle from engine.energies.bending._atan2: a polynomial for
+    """Both paths take the hinge angle from engine.energies.hinge.fast_atan2: a polynomial for
     |y| < x/8, the C library's atan2 elsewhere. Against numpy's arctan2 (the C library's) it is
     within 1 ulp everywhere, inside the polynomial's range and out of it, and exact at zero."""
     import taichi as ti
-    from engine.energies.bending import _atan2
+    from engine.energies.hinge import fast_atan2
     from engine.fields import float_dtype, scalar_ndarray
 
     @ti.kernel
     def angles(y: ti.types.ndarray(ndim=1), x: ti.types.ndarray(ndim=1), out: ti.types.ndarray(ndim=1)):
         for i in range(y.shape[0]):
-            out[i] = _atan2(y[i], x[i])
+            out[i] = fast_atan2(y[i], x[i])
 
     fdt = float_dtype()
     rng = np.random.default_rng(17)

@@ -14,7 +14,7 @@ Sources
   3 |e|^2 / (A0 + A1).
 * Bridson, Marino, Fedkiw, "Simulation of clothing with folds and wrinkles", SCA 2003,
   section 4 (bending): F_i = k |E|^2 / (|N1| + |N2|) sin(theta/2) u_i with the u_1..u_4
-  vectors reproduced literally by :func:`bridson_u_kernel`.
+  vectors reproduced literally by :func:`engine.energies.hinge.bridson_u_kernel`.
 
 Energy per hinge (the single source of truth: forces and Hessians below are its
 derivatives), with d = theta - theta_bar wrapped into [-pi, pi):
@@ -56,40 +56,17 @@ notes' force k_e theta u, the force ratio at theta_bar = 0 is
 
 (the same small-angle stiffness: d2W/dtheta2 = k_e at d = 0).
 
-Angle and gradient
-------------------
-Hinge convention (engine/mesh.py): row [v0, v1, w0, w1]; edge e = x_v1 - x_v0, triangle
-t0 = (v0, v1, w0), t1 = (v1, v0, w1), both in the mesh's orientation.  With
-N0 = e x (x_w0 - x_v0), N1 = (x_v0 - x_v1) x (x_w1 - x_v1) = (x_w1 - x_v0) x e:
+A variant is two choices, the two columns of :data:`VARIANT_AXES`: the shape of W(theta), (W1)
+or (W2) (the ``mode`` of engine.energies.hinge), and the weight k_e of each hinge, (K1) or (K2):
+notes = (W1, K1), bridson = (W2, K1), discrete-shells = (W1, K2).
 
-    theta = atan2( e_hat . (N0 x N1), N0 . N1 )   in (-pi, pi]                            (A1)
-
-(atan2 of unnormalised sine and cosine parts: no acos, accurate near 0 and near +-pi).
-SIGN: theta = 0 for a flat hinge, theta > 0 where the surface is convex on the side its
-normals point to (e.g. every edge of a convex closed surface with outward normals, or a
-cylinder with outward normals), theta < 0 where it is concave.  Moving a wing along its own
-normal decreases theta.
-
-Gradient (h0 = |N0|/|e|, h1 = |N1|/|e|, n = N/|N|, t_i = (x_wi - x_v0).e / |e|^2 the
-position of the wing's foot along the edge):
-
-    dtheta/dx_w0 = -n0/h0 = -|e| N0/|N0|^2,    dtheta/dx_w1 = -n1/h1 = -|e| N1/|N1|^2     (G1)
-    dtheta/dx_v1 = -t0 dtheta/dx_w0 - t1 dtheta/dx_w1                                      (G2)
-    dtheta/dx_v0 = -(1 - t0) dtheta/dx_w0 - (1 - t1) dtheta/dx_w1                          (G3)
-
-The four sum to zero; Bridson's u_1..u_4 (x1 = w0, x2 = w1, x3 = v0, x4 = v1) are exactly
--grad theta.
-
-Hessian of theta: theta is a function of the three difference vectors e, a0 = x_w0 - x_v0,
-a1 = x_w1 - x_v0.  In those variables G_a0 = -|e| N0/|N0|^2, G_a1 = -|e| N1/|N1|^2,
-G_e = -t0 G_a0 - t1 G_a1, and with d(N/|N|^2) = (I - 2 n n^T)/|N|^2 dN,
-dN0 = [e]x da0 - [a0]x de, dN1 = -[e]x da1 + [a1]x de, the nine 3x3 blocks follow by the
-product rule (see :func:`_theta_hessian_parts`); the 12x12 Hessian is P^T H9 P with P the
-map x -> (e, a0, a1).  Checked against finite differences in tests/test_bending_energy.py.
-
-W Hessian:  exact  H = W'' g g^T + W' Hess(theta);  Gauss-Newton (psd)  H = max(W'', 0) g g^T
-(g = grad theta).  At theta = theta_bar (W' = 0) the two coincide.  The Gauss-Newton one is
-rank one, H = w w^T with w = sqrt(max(W'', 0)) g (:meth:`BendingEnergy.gauss_newton_factors`).
+Angle, gradient, Hessians
+-------------------------
+The single-hinge math, the dihedral angle theta (A1) with its sign convention, its gradient
+(G1)-(G3) and Hessian, the energy terms W, W', W'' of (W1)/(W2) and a hinge's exact and
+Gauss-Newton Hessian blocks, is engine/energies/hinge.py; this module sums it over the hinges.
+The Gauss-Newton hinge Hessian max(W'', 0) g g^T (g = grad theta) is rank one, H = w w^T with
+w = sqrt(max(W'', 0)) g (:meth:`BendingEnergy.gauss_newton_factors`).
 
 Hessian block layout: ``blocks[h, 4*a + b]`` (mat3) is d2W_h/dx_a dx_b for slots a, b in
 [v0, v1, w0, w1] order.
@@ -111,6 +88,11 @@ import taichi as ti
 
 from engine import geometry
 from engine.energies.base import Energy
+from engine.energies.hinge import (MODE_HALF_ANGLE, MODE_QUADRATIC, dihedral_angle, dihedral_angle_gradient,
+                                   dihedral_angle_hessian_block, dihedral_angle_hessian_parts, hinge_energy,
+                                   hinge_energy_terms, hinge_forces, hinge_hessian_block, hinge_hessian_parts, row_frame)
+# the angle's kernels, also named here (__all__) for this module's readers
+from engine.energies.hinge import bridson_u_kernel, hinge_angles_kernel, theta_gradient_kernel, theta_hessian_kernel
 from engine.errors import ModelError
 from engine.fields import (float_dtype, int_array, mat3_array, mat3_array2, scalar_array, vec3_array, vec3_array2,
                            vec3_ndarray)
@@ -127,21 +109,14 @@ __all__ = [
     "dense_hessian_from_hinge_blocks", "scatter_hinge_vectors_numpy", "validate_hinges",
 ]
 
-VARIANTS = ("notes", "bridson", "discrete-shells")
-MODE_QUADRATIC = 0   # (W1)
-MODE_HALF_ANGLE = 1  # (W2)
-_MODE = {"notes": MODE_QUADRATIC, "bridson": MODE_HALF_ANGLE, "discrete-shells": MODE_QUADRATIC}
+# variant: (shape of W(theta): the hinge mode, (W1) or (W2); weight k_e per hinge: (K1) or (K2))
+VARIANT_AXES = {"notes": (MODE_QUADRATIC, "K1"), "bridson": (MODE_HALF_ANGLE, "K1"),
+                "discrete-shells": (MODE_QUADRATIC, "K2")}
+VARIANTS = tuple(VARIANT_AXES)
 
 
 class BendingError(ModelError):
     """Invalid bending input (a ValueError); one line naming the offending hinge/parameter."""
-
-
-# Coefficients of P: (e, a0, a1) = P (x_v0, x_v1, x_w0, x_w1); row p, column slot.
-_P = ((-1, 1, 0, 0),   # e  = x_v1 - x_v0
-      (-1, 0, 1, 0),   # a0 = x_w0 - x_v0
-      (-1, 0, 0, 1))   # a1 = x_w1 - x_v0
-_H9_NONZERO = ((1, 1, 1), (1, 1, 0), (1, 0, 1))  # d G_a0 / d a1 = d G_a1 / d a0 = 0
 
 
 # --------------------------------------------------------------------------------------------
@@ -149,176 +124,12 @@ _H9_NONZERO = ((1, 1, 1), (1, 1, 0), (1, 0, 1))  # d G_a0 / d a1 = d G_a1 / d a0
 # --------------------------------------------------------------------------------------------
 
 @ti.func
-def _skew(a):
-    """[a]x, the matrix with [a]x b = a x b."""
-    return ti.Matrix([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
-
-
-# atan(t) = t - t z P(z), z = t^2, for |t| < 1/8: P(z) = (t - atan t)/(t z) interpolated at 6 Chebyshev
-# nodes in z in 80-bit arithmetic, rounded to f64. Against an 80-bit atan the result is within
-# 0.57 ulp in f64 (the C library's atan2: 0.52) and 0.51 ulp in f32.
-_ATAN_P = (0.3333333333333331, -0.19999999999808935, 0.14285714134412197, -0.11111068939432774,
-           0.09085639204325464, -0.07388585930069287)
-
-
-@ti.func
-def _atan2(y, x):
-    """atan2(y, x), inline for |y| < x / 8 (|angle| < 7.1 deg: most hinges of a cloth or a shell),
-    where the polynomial is quicker than the C library's atan2 call; that call otherwise."""
-    r = 0.0
-    if ti.abs(y) < 0.125 * x:
-        t = y / x
-        z = t * t
-        c = ti.static(_ATAN_P)
-        p = c[4] + z * c[5]
-        for j in ti.static(range(3, -1, -1)):
-            p = c[j] + z * p
-        r = t - t * (z * p)
-    else:
-        r = ti.atan2(y, x)
-    return r
-
-
-@ti.func
-def _theta(e, a0, a1):
-    # (A1) theta = atan2(e_hat . (N0 x N1), N0 . N1), N0 = e x a0, N1 = a1 x e, evaluated as
-    # atan2(-|e| (N0 . a1), N0 . N1): N0 x N1 = (e x a0) x (a1 x e) = -((e x a0) . a1) e, so
-    # e_hat . (N0 x N1) = -|e| (N0 . a1) (one dot product instead of a cross product, a dot and a
-    # division; the rest of a force or Hessian kernel shares N0 and |e| with the gradient)
-    N0 = e.cross(a0)
-    N1 = a1.cross(e)
-    return _atan2(-e.norm() * N0.dot(a1), N0.dot(N1))
-
-
-@ti.func
-def _theta_grad(e, a0, a1):
-    """(G1)-(G3): dtheta/dx for the slots (v0, v1, w0, w1)."""
-    s = e.norm()
-    N0 = e.cross(a0)
-    N1 = a1.cross(e)
-    g_w0 = (-s / N0.norm_sqr()) * N0           # -n0/h0
-    g_w1 = (-s / N1.norm_sqr()) * N1           # -n1/h1
-    t0 = a0.dot(e) / (s * s)
-    t1 = a1.dot(e) / (s * s)
-    g_v1 = -t0 * g_w0 - t1 * g_w1
-    g_v0 = -(g_v1 + g_w0 + g_w1)               # = -(1-t0) g_w0 - (1-t1) g_w1
-    return g_v0, g_v1, g_w0, g_w1
-
-
-@ti.func
-def _theta_hessian_parts(e, a0, a1):
-    """Second derivatives of theta(e, a0, a1): the blocks d G_p / d q (row = component of
-    the gradient G_p, column = component of q) for p, q in (e, a0, a1); G_a0 / a1 and
-    G_a1 / a0 vanish."""
-    I3 = ti.Matrix.identity(float, 3)
-    s = e.norm()
-    s2 = s * s
-    e_hat = e / s
-    N0 = e.cross(a0)
-    N1 = a1.cross(e)
-    q0 = N0.norm_sqr()
-    q1 = N1.norm_sqr()
-    f0 = N0 / q0                               # N/|N|^2
-    f1 = N1 / q1
-    D0 = (I3 - 2.0 * f0.outer_product(N0)) / q0   # d(N/|N|^2)/dN = (I - 2 n n^T)/|N|^2
-    D1 = (I3 - 2.0 * f1.outer_product(N1)) / q1
-    G_a0 = -s * f0
-    G_a1 = -s * f1
-    t0 = a0.dot(e) / s2
-    t1 = a1.dot(e) / s2
-    # G_a0 = -|e| f(N0), dN0/da0 = [e]x, dN0/de = -[a0]x
-    H_a0a0 = -s * (D0 @ _skew(e))
-    H_a0e = -f0.outer_product(e_hat) + s * (D0 @ _skew(a0))
-    # G_a1 = -|e| f(N1), dN1/da1 = -[e]x, dN1/de = [a1]x
-    H_a1a1 = s * (D1 @ _skew(e))
-    H_a1e = -f1.outer_product(e_hat) - s * (D1 @ _skew(a1))
-    # G_e = -t0 G_a0 - t1 G_a1; dt/da = e/|e|^2, dt/de = a/|e|^2 - 2 (a.e) e/|e|^4
-    dt0_de = a0 / s2 - (2.0 * a0.dot(e) / (s2 * s2)) * e
-    dt1_de = a1 / s2 - (2.0 * a1.dot(e) / (s2 * s2)) * e
-    H_ee = -G_a0.outer_product(dt0_de) - t0 * H_a0e - G_a1.outer_product(dt1_de) - t1 * H_a1e
-    H_ea0 = -G_a0.outer_product(e / s2) - t0 * H_a0a0
-    H_ea1 = -G_a1.outer_product(e / s2) - t1 * H_a1a1
-    return H_ee, H_ea0, H_ea1, H_a0e, H_a0a0, H_a1e, H_a1a1
-
-
-@ti.func
-def _theta_block(i: ti.template(), j: ti.template(), H_ee, H_ea0, H_ea1, H_a0e, H_a0a0, H_a1e, H_a1a1):
-    """Block (i, j) of the 12x12 Hessian of theta: sum_pq P[p][i] P[q][j] H9[p][q]."""
-    H9 = [[H_ee, H_ea0, H_ea1], [H_a0e, H_a0a0, H_a0a0], [H_a1e, H_a1a1, H_a1a1]]  # dummies where zero
-    out = ti.Matrix.zero(float, 3, 3)
-    for p in ti.static(range(3)):
-        for q in ti.static(range(3)):
-            if ti.static(_P[p][i] * _P[q][j] * _H9_NONZERO[p][q] != 0):
-                out += ti.static(float(_P[p][i] * _P[q][j])) * H9[p][q]
-    return out
-
-
-@ti.func
-def _wrap(d):
-    """d into [-pi, pi), so that W stays continuous when theta crosses +-pi."""
-    r = d
-    if r >= ti.math.pi:
-        r -= 2.0 * ti.math.pi
-    elif r < -ti.math.pi:
-        r += 2.0 * ti.math.pi
-    return r
-
-
-@ti.func
-def _energy_terms(theta, k, theta_bar, mode):
-    """W, dW/dtheta, d2W/dtheta2 of (W1) (mode 0) or (W2) (mode 1)."""
-    d = _wrap(theta - theta_bar)
-    W = 0.0
-    W1 = 0.0
-    W2 = 0.0
-    if mode == MODE_HALF_ANGLE:
-        s4 = ti.sin(0.25 * d)
-        W = 8.0 * k * s4 * s4              # 4 k (1 - cos(d/2)), cancellation-free
-        W1 = 2.0 * k * ti.sin(0.5 * d)
-        W2 = k * ti.cos(0.5 * d)
-    else:
-        W = 0.5 * k * d * d
-        W1 = k * d
-        W2 = k
-    return W, W1, W2
-
-
-@ti.func
-def _frame(x: ti.template(), hinges: ti.template(), h):
-    xv0 = x[hinges[h, 0]]
-    return x[hinges[h, 1]] - xv0, x[hinges[h, 2]] - xv0, x[hinges[h, 3]] - xv0
-
-
-@ti.func
 def _hinge_terms(x: ti.template(), hinges: ti.template(), k: ti.template(), theta_bar: ti.template(), mode, h):
     """Per-hinge set-up of the force and Hessian kernels: the frame (e, a0, a1), W' and W'' of
     (W1)/(W2) at theta (A1), and g = grad theta (G1)-(G3) over the slots (v0, v1, w0, w1)."""
-    e, a0, a1 = _frame(x, hinges, h)
-    W, W1, W2 = _energy_terms(_theta(e, a0, a1), k[h], theta_bar[h], mode)
-    return e, a0, a1, W1, W2, _theta_grad(e, a0, a1)
-
-
-@ti.func
-def _hinge_block(i: ti.template(), j: ti.template(), psd: ti.template(), W1, W2, g, parts):
-    """Block (i, j) of the hinge's W Hessian: max(W'', 0) g_i g_j^T (psd) or W'' g_i g_j^T +
-    W' Hess(theta)_ij (exact; ``parts`` from :func:`_theta_hessian_parts`, unused if psd)."""
-    out = ti.Matrix.zero(float, 3, 3)
-    if ti.static(psd):
-        out = ti.max(W2, 0.0) * g[i].outer_product(g[j])
-    else:
-        out = W2 * g[i].outer_product(g[j]) + W1 * _theta_block(i, j, *parts)
-    return out
-
-
-@ti.func
-def _hinge_parts(psd: ti.template(), e, a0, a1):
-    """The second derivatives of theta the exact Hessian needs (:func:`_theta_hessian_parts`);
-    zeros, never read, for the Gauss-Newton one."""
-    z = ti.Matrix.zero(float, 3, 3)
-    if ti.static(psd):
-        return z, z, z, z, z, z, z
-    else:
-        return _theta_hessian_parts(e, a0, a1)
+    e, a0, a1 = row_frame(x, hinges, h)
+    W, W1, W2 = hinge_energy_terms(dihedral_angle(e, a0, a1), k[h], theta_bar[h], mode)
+    return e, a0, a1, W1, W2, dihedral_angle_gradient(e, a0, a1)
 
 
 @ti.func
@@ -332,68 +143,12 @@ def hinge_block(blocks: ti.template(), h, a: ti.template(), b: ti.template()) ->
 # --------------------------------------------------------------------------------------------
 
 @ti.kernel
-def hinge_angles_kernel(x: vec3_array, hinges: hinge_array, theta: scalar_array):
-    # (A1)
-    for h in range(hinges.shape[0]):
-        e, a0, a1 = _frame(x, hinges, h)
-        theta[h] = _theta(e, a0, a1)
-
-
-@ti.kernel
-def theta_gradient_kernel(x: vec3_array, hinges: hinge_array, grad: vec3_array2):
-    # (G1)-(G3): grad[h, slot] = dtheta_h / dx_slot
-    for h in range(hinges.shape[0]):
-        e, a0, a1 = _frame(x, hinges, h)
-        g = _theta_grad(e, a0, a1)
-        for a in ti.static(range(4)):
-            grad[h, a] = g[a]
-
-
-@ti.kernel
-def bridson_u_kernel(x: vec3_array, hinges: hinge_array, u: vec3_array2):
-    # Bridson et al. 2003, section 4, literally: x1, x2 the wings, x3, x4 the edge,
-    # E = x4 - x3, N1 = (x1 - x3) x (x1 - x4), N2 = (x2 - x4) x (x2 - x3),
-    # u1 = |E| N1/|N1|^2, u2 = |E| N2/|N2|^2,
-    # u3 = (x1-x4).E/|E| N1/|N1|^2 + (x2-x4).E/|E| N2/|N2|^2,
-    # u4 = -(x1-x3).E/|E| N1/|N1|^2 - (x2-x3).E/|E| N2/|N2|^2.
-    # Mapping x1 = w0, x2 = w1, x3 = v0, x4 = v1; written in slot order (v0, v1, w0, w1) =
-    # (u3, u4, u1, u2).  They equal -dtheta/dx.
-    for h in range(hinges.shape[0]):
-        x3 = x[hinges[h, 0]]
-        x4 = x[hinges[h, 1]]
-        x1 = x[hinges[h, 2]]
-        x2 = x[hinges[h, 3]]
-        E = x4 - x3
-        En = E.norm()
-        N1 = (x1 - x3).cross(x1 - x4)
-        N2 = (x2 - x4).cross(x2 - x3)
-        m1 = N1 / N1.norm_sqr()
-        m2 = N2 / N2.norm_sqr()
-        u[h, 2] = En * m1
-        u[h, 3] = En * m2
-        u[h, 0] = ((x1 - x4).dot(E) / En) * m1 + ((x2 - x4).dot(E) / En) * m2
-        u[h, 1] = -((x1 - x3).dot(E) / En) * m1 - ((x2 - x3).dot(E) / En) * m2
-
-
-@ti.kernel
-def theta_hessian_kernel(x: vec3_array, hinges: hinge_array, blocks: mat3_array2):
-    # Hess(theta) per hinge, blocks[h, 4a + b] = d2 theta / dx_a dx_b
-    for h in range(hinges.shape[0]):
-        e, a0, a1 = _frame(x, hinges, h)
-        H_ee, H_ea0, H_ea1, H_a0e, H_a0a0, H_a1e, H_a1a1 = _theta_hessian_parts(e, a0, a1)
-        for i in ti.static(range(4)):
-            for j in ti.static(range(4)):
-                blocks[h, 4 * i + j] = _theta_block(i, j, H_ee, H_ea0, H_ea1, H_a0e, H_a0a0, H_a1e, H_a1a1)
-
-
-@ti.kernel
 def hinge_energies_kernel(x: vec3_array, hinges: hinge_array, k: scalar_array, theta_bar: scalar_array,
                           mode: ti.i32, out: scalar_array):
     # (W1)/(W2) per hinge
     for h in range(hinges.shape[0]):
-        e, a0, a1 = _frame(x, hinges, h)
-        W, W1, W2 = _energy_terms(_theta(e, a0, a1), k[h], theta_bar[h], mode)
-        out[h] = W
+        e, a0, a1 = row_frame(x, hinges, h)
+        out[h] = hinge_energy(e, a0, a1, k[h], theta_bar[h], mode)
 
 
 @ti.kernel
@@ -402,9 +157,8 @@ def bending_energy_kernel(x: vec3_array, hinges: hinge_array, k: scalar_array, t
     # sum_e W_e, (W1)/(W2); parallel reduction
     total = 0.0
     for h in range(hinges.shape[0]):
-        e, a0, a1 = _frame(x, hinges, h)
-        W, W1, W2 = _energy_terms(_theta(e, a0, a1), k[h], theta_bar[h], mode)
-        total += W
+        e, a0, a1 = row_frame(x, hinges, h)
+        total += hinge_energy(e, a0, a1, k[h], theta_bar[h], mode)
     return total
 
 
@@ -412,9 +166,10 @@ def bending_energy_kernel(x: vec3_array, hinges: hinge_array, k: scalar_array, t
 def hinge_force_vectors(x: ti.template(), hinges: ti.template(), k: ti.template(), theta_bar: ti.template(),
                         mode, fh: ti.template(), h):
     """Pass 1 for hinge h: fh[h, slot] = -dW_h/dx_slot = -W'(theta) dtheta/dx_slot (= W' u, Bridson's u)."""
-    e, a0, a1, W1, W2, g = _hinge_terms(x, hinges, k, theta_bar, mode, h)
+    e, a0, a1 = row_frame(x, hinges, h)
+    f = hinge_forces(e, a0, a1, k[h], theta_bar[h], mode)
     for a in ti.static(range(4)):
-        fh[h, a] = -W1 * g[a]
+        fh[h, a] = f[a]
 
 
 @ti.func
@@ -447,13 +202,13 @@ def hinge_hessian_kernel(x: vec3_array, hinges: hinge_array, k: scalar_array, th
     # diagonal=False: out[h, 4a + b] = H_ab (h, 16);  diagonal=True (block-Jacobi pass 1): out[h, a] = H_aa (h, 4)
     for h in range(hinges.shape[0]):
         e, a0, a1, W1, W2, g = _hinge_terms(x, hinges, k, theta_bar, mode, h)
-        parts = _hinge_parts(psd, e, a0, a1)
+        parts = hinge_hessian_parts(psd, e, a0, a1)
         for i in ti.static(range(4)):
             for j in ti.static(range(4)):
                 if ti.static(not diagonal):
-                    out[h, 4 * i + j] = _hinge_block(i, j, psd, W1, W2, g, parts)
+                    out[h, 4 * i + j] = hinge_hessian_block(i, j, psd, W1, W2, g, parts)
                 elif ti.static(i == j):
-                    out[h, i] = _hinge_block(i, i, psd, W1, W2, g, parts)
+                    out[h, i] = hinge_hessian_block(i, i, psd, W1, W2, g, parts)
 
 
 @ti.kernel
@@ -480,11 +235,11 @@ def hinge_hessian_products_kernel(x: vec3_array, hinges: hinge_array, k: scalar_
             for i in ti.static(range(4)):
                 yh[h, i] = c * g[i]
         else:
-            parts = _theta_hessian_parts(e, a0, a1)
+            parts = dihedral_angle_hessian_parts(e, a0, a1)
             for i in ti.static(range(4)):
                 y = (W2 * gd) * g[i]
                 for j in ti.static(range(4)):
-                    y += W1 * (_theta_block(i, j, *parts) @ d[j])
+                    y += W1 * (dihedral_angle_hessian_block(i, j, *parts) @ d[j])
                 yh[h, i] = y
 
 
@@ -508,7 +263,7 @@ def hinge_stiffness(variant: str, B, geometry: dict) -> np.ndarray:
     if variant not in VARIANTS:
         raise BendingError(f"unknown bending variant {variant!r}; choose one of {', '.join(VARIANTS)}")
     L, h0, h1 = geometry["edge_length"], geometry["h0"], geometry["h1"]
-    if variant == "discrete-shells":
+    if VARIANT_AXES[variant][1] == "K2":
         return B * L * L / (4.0 * (geometry["A0"] + geometry["A1"]))   # (K2) B|e|^2/(4(A0+A1))
     return B * L * L / (36.0 * (L * (h0 + h1) / 6.0))                    # (K1) B|e|^2/(36 A_e)
 
@@ -646,7 +401,7 @@ class BendingEnergy(Energy):
         self.n_vertices = len(X)
         self.n_hinges = h
         self.variant = variant
-        self.mode = _MODE[variant]
+        self.mode, self.weight = VARIANT_AXES[variant]  # the shape of W(theta) and the weight k_e
         self.hinges_np = H
         self.geometry = geometry.hinge_geometry(X, H)
         self.A_e = self.geometry["A_e"]

@@ -37,7 +37,7 @@ import numpy as np
 import taichi as ti
 
 from engine.energies.axial import axial_force, axial_potential
-from engine.energies.bending import _energy_terms, _theta, _theta_grad
+from engine.energies.hinge import hinge_forces, hinge_frame
 from engine.energies.masses import add_gravity_potential, kinetic_energy
 from engine.energies.springs import spring_energy, spring_force, spring_gather
 from engine.solvers.thomas import axial_backward_euler
@@ -231,23 +231,11 @@ CLOTH_SE, CLOTH_VV, CLOTH_VV_BEGIN = 0, 1, 2
 
 
 @ti.func
-def _hinge_forces(x: ti.template(), v0, v1, w0, w1, k, theta_bar, mode):
-    """-dW_h/dx of one hinge on its slots (v0, v1, w0, w1): the arithmetic of
-    :func:`engine.energies.bending.hinge_force_vectors` (frame, (A1), (W1)/(W2), (G1)-(G3))."""
-    xv0 = x[v0]
-    e = x[v1] - xv0
-    a0 = x[w0] - xv0
-    a1 = x[w1] - xv0
-    W, W1, W2 = _energy_terms(_theta(e, a0, a1), k, theta_bar, mode)
-    g = _theta_grad(e, a0, a1)
-    return -W1 * g[0], -W1 * g[1], -W1 * g[2], -W1 * g[3]
-
-
-@ti.func
 def _hinge_entry(x: ti.template(), I: ti.template(), F: ti.template(), hv, f_h, q, mode):
-    """The four forces of the block's hinge entry q (vertices I[hv + 4q ...], k and theta_bar in F)."""
-    return _hinge_forces(x, I[hv + 4 * q], I[hv + 4 * q + 1], I[hv + 4 * q + 2], I[hv + 4 * q + 3],
-                         F[f_h + 2 * q], F[f_h + 2 * q + 1], mode)
+    """The four forces of the block's hinge entry q (vertices I[hv + 4q ...], k and theta_bar in F):
+    engine.energies.hinge.hinge_forces, as engine.energies.bending.hinge_force_vectors computes them."""
+    e, a0, a1 = hinge_frame(x, I[hv + 4 * q], I[hv + 4 * q + 1], I[hv + 4 * q + 2], I[hv + 4 * q + 3])
+    return hinge_forces(e, a0, a1, F[f_h + 2 * q], F[f_h + 2 * q + 1], mode)
 
 
 @ti.func
