@@ -4,14 +4,14 @@ Every test asserts a measured number against theory: the analytic dihedral angle
 finite differences (f64), Bridson et al. 2003's u_1..u_4, rigid-motion invariance, the
 force ratio (R1) 2 sin(theta/2)/theta, the cylinder curvature 1/(2R) and energy, and the
 error messages.  Hinges are built by hand here (columns [v0, v1, w0, w1], t0 = (v0, v1, w0),
-t1 = (v1, v0, w1)), independently of engine/mesh.py.
+t1 = (v1, v0, w1)), independently of engine/mesh/.
 """
 import math
 
 import numpy as np
 import pytest
 
-from engine import geometry
+from engine import mesh as meshes
 from engine.energies import bending as bm
 from engine.energies.bending import BendingEnergy, BendingError, VARIANTS
 from engine.energies.base import Energy
@@ -144,7 +144,7 @@ def test_theta_matches_analytic_hinge_over_minus_pi_to_pi():
     theta = E.angles(X)
     err = np.abs(theta - np.array(ANGLES))
     assert err.max() < 1e-13, err.max()  # measured ~4e-16: atan2 keeps full precision near +-pi
-    assert np.abs(theta - geometry.dihedral_angles(X, H)).max() < 1e-14
+    assert np.abs(theta - meshes.dihedral_angles(X, H)).max() < 1e-14
 
 
 def test_theta_sign_convention():
@@ -431,7 +431,7 @@ def _bridson_literal(X, H, k):
     probe = BendingEnergy(X, H, 1.0)  # only for its hinge ndarray and angles
     u = ti.ndarray(dtype=ti.math.vec3, shape=(len(H), 4))
     bm.bridson_u_kernel(vec3_ndarray(len(X), X), probe.hinges, u)
-    geo = geometry.hinge_geometry(X, np.asarray(H))
+    geo = meshes.hinge_geometry(X, np.asarray(H))
     coef = geo["edge_length"] ** 2 / (2 * (geo["A0"] + geo["A1"]))  # |E|^2/(|N1|+|N2|) now
     return k * (coef * np.sin(probe.angles(X) / 2))[:, None, None] * u.to_numpy(), coef
 

@@ -1,4 +1,4 @@
-"""Tests of engine/mesh.py: counts, conservation of area/volume/mass, hinge convention,
+"""Tests of engine/mesh/: counts, conservation of area/volume/mass, hinge convention,
 conformity, incidence, validation messages, and the geometric generators."""
 import math
 
@@ -374,13 +374,13 @@ def test_jitter_moves_only_interior_within_amplitude(pattern):
 def test_element_widths_bound_the_jitter():
     # right triangle with legs h: width h/sqrt(2); Kuhn tet of a cube of side h: h/sqrt(3)
     # (distance between the opposite edges 000-110 and 100-111); regular tet: s/sqrt(2)
-    w = M._element_widths(M.right_triangle_grid(3, 3, 1.0, 1.0))
+    w = M.generators._element_widths(M.right_triangle_grid(3, 3, 1.0, 1.0))
     np.testing.assert_allclose(w, 0.5 / math.sqrt(2), rtol=1e-12)
-    w = M._element_widths(M.tet_box(3, 3, 3, 1.0))
+    w = M.generators._element_widths(M.tet_box(3, 3, 3, 1.0))
     np.testing.assert_allclose(w, 0.5 / math.sqrt(3), rtol=1e-12)
     reg = Mesh([[1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]], tets=[[0, 2, 1, 3]])
     M.validate(reg)
-    np.testing.assert_allclose(M._element_widths(reg), 2 * math.sqrt(2) / math.sqrt(2))
+    np.testing.assert_allclose(M.generators._element_widths(reg), 2 * math.sqrt(2) / math.sqrt(2))
     # stretched cells (aspect 50): the cap keeps amplitude 0.25 safe for every seed
     for pattern in PATTERNS:
         g = M.right_triangle_grid(6, 30, 5.0, 0.1, pattern)

@@ -86,7 +86,6 @@ uniformly bent regular mesh it equals total energy / total area at interior vert
 import numpy as np
 import taichi as ti
 
-from engine import geometry
 from engine.energies.base import Energy
 from engine.energies.hinge import (MODE_HALF_ANGLE, MODE_QUADRATIC, dihedral_angle, dihedral_angle_gradient,
                                    dihedral_angle_hessian_block, dihedral_angle_hessian_parts, hinge_energy,
@@ -97,6 +96,7 @@ from engine.errors import ModelError
 from engine.fields import (float_dtype, int_array, mat3_array, mat3_array2, scalar_array, vec3_array, vec3_array2,
                            vec3_ndarray)
 from engine.fields import int_array2 as hinge_array
+from engine.mesh import as_points3, dihedral_angles, hinge_geometry, incidence
 
 __all__ = [
     "BendingError", "BendingEnergy", "VARIANTS",
@@ -278,7 +278,7 @@ def validate_hinges(X, hinges, B=None, theta_bar=None, rel_tol: float = 1e-12) -
     Checks: shape; indices in 0..n-1; four distinct vertices; finite rest positions of the
     hinge vertices; each wing triangle t0 = (v0, v1, w0), t1 = (v1, v0, w1) of non-zero area
     (2 * area > rel_tol * longest side^2); B finite and >= 0; theta_bar finite."""
-    X = geometry.as_points3(X, BendingError)
+    X = as_points3(X, BendingError)
     n = len(X)
     H = np.asarray(hinges)
     if H.size == 0:
@@ -361,7 +361,7 @@ class BendingEnergy(Energy):
 
     Parameters
       rest_positions  (n, 3) rest positions [m] (numpy or vec3 ndarray; (n, 2) is embedded at z=0)
-      hinges          (h, 4) int [v0, v1, w0, w1] (engine/mesh.py convention)
+      hinges          (h, 4) int [v0, v1, w0, w1] (engine.mesh convention)
       B               bending modulus [J = N m], scalar or per hinge, finite and >= 0
       variant         "notes" | "bridson" | "discrete-shells"
       theta_bar       (h,) rest angles [rad]; or from_rest=True to measure them on the rest
@@ -370,7 +370,7 @@ class BendingEnergy(Energy):
     Protocol (engine.model.Energy): x, f, dx, out are vec3 ndarrays with one entry per vertex
     (numpy (n, 3) arrays are also accepted; a numpy f/out is updated in place).
     Attributes (numpy, float64): ``hinges_np``, ``k`` (k_e), ``theta_bar``, ``geometry``
-    (engine.geometry.hinge_geometry dict), ``A_e``.  Taichi ndarrays (size max(h, 1)):
+    (engine.mesh.hinge_geometry dict), ``A_e``.  Taichi ndarrays (size max(h, 1)):
     ``hinges`` (h, 4) i32, ``k_nd``, ``theta_bar_nd``, the incidence ``offsets`` (n+1,) and
     ``entries`` (4h,) (entry = 4 hinge + slot), the per-hinge vec3 buffer ``per_hinge_vec`` (h, 4).
     :meth:`hinge_args` and :meth:`force_args` are the argument tuples of its kernels and of the
@@ -391,7 +391,7 @@ class BendingEnergy(Energy):
                  from_rest: bool = False):
         if variant not in VARIANTS:
             raise BendingError(f"unknown bending variant {variant!r}; choose one of {', '.join(VARIANTS)}")
-        X = geometry.as_points3(rest_positions, BendingError)
+        X = as_points3(rest_positions, BendingError)
         H = validate_hinges(X, hinges, B=B, theta_bar=theta_bar)
         if from_rest and theta_bar is not None:
             raise BendingError("give either theta_bar or from_rest=True, not both")
@@ -403,18 +403,18 @@ class BendingEnergy(Energy):
         self.variant = variant
         self.mode, self.weight = VARIANT_AXES[variant]  # the shape of W(theta) and the weight k_e
         self.hinges_np = H
-        self.geometry = geometry.hinge_geometry(X, H)
+        self.geometry = hinge_geometry(X, H)
         self.A_e = self.geometry["A_e"]
         self.B = np.broadcast_to(np.asarray(B, dtype=np.float64), (h,)).copy()
         self.k = hinge_stiffness(variant, self.B, self.geometry)
         if from_rest:
-            tb = geometry.dihedral_angles(X, H)
+            tb = dihedral_angles(X, H)
         elif theta_bar is None:
             tb = np.zeros(h)
         else:
             tb = np.asarray(theta_bar, dtype=np.float64).copy()
         self.theta_bar = tb
-        self.offsets_np, self.entries_np = geometry.incidence(self.n_vertices, H.reshape(-1))  # entry = 4 hinge + slot
+        self.offsets_np, self.entries_np = incidence(self.n_vertices, H.reshape(-1))  # entry = 4 hinge + slot
 
         m = max(h, 1)  # ndarrays of size 0 are avoided; kernels are skipped when h == 0
         fdt = float_dtype()

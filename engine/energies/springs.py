@@ -44,11 +44,11 @@ benchmark's variants (bench/variants.py) call them.
 import numpy as np
 import taichi as ti
 
-from engine import geometry
 from engine.energies.base import Energy
 from engine.errors import ModelError
 from engine.fields import (edge_array, float_dtype, int_array, int_ndarray, mat3_array, per_item, scalar_array,
                            scalar_ndarray, vec3_array)
+from engine.mesh import edge_incidence
 
 
 # --------------------------------------------------------------------------------------------
@@ -282,7 +282,7 @@ class SpringEnergy(Energy):
         self.edges_np = edges
         self.L_np = L
         self.c_np = c
-        offsets, inc_edge, inc_other = geometry.edge_incidence(self.n_vertices, edges, by="other")
+        offsets, inc_edge, inc_other = edge_incidence(self.n_vertices, edges, by="other")
         self.offsets_np, self.inc_edge_np, self.inc_other_np = offsets, inc_edge, inc_other
         if m >= 2 ** 30:
             raise ModelError(f"too many edges for i32 indexing ({m})")
