@@ -154,7 +154,7 @@ def backward_euler_for(model, state_reset, dt, solver, fp, tol=None):
     f64; in f32 the first tolerance of F32_TOL_FALLBACK that one step from the reset state reaches
     (f32 round-off puts a floor of ~1e-5..1e-4 under the relative residual).  Returns
     (integrator, tol, tolerances that failed); integrator None if none was reached."""
-    from engine.integrators import BackwardEuler, SolverError
+    from engine.integrators import BackwardEuler, SolverError, Stepper
     if fp == 64:
         tol = IMPLICIT_TOL[64] if tol is None else float(tol)
         return BackwardEuler(solver=solver, tol=tol, newton_iterations=1, line_search=False,
@@ -164,7 +164,7 @@ def backward_euler_for(model, state_reset, dt, solver, fp, tol=None):
         be = BackwardEuler(solver=solver, tol=tol, newton_iterations=1, line_search=False, max_iter=100000)
         state_reset()
         try:
-            be.advance(model, state_reset.state, dt)
+            Stepper(model, be).advance(state_reset.state, dt)
         except SolverError:
             failed.append(tol)
             continue

@@ -13,7 +13,7 @@ B = 1e-4 N m) and each stretching modulus E:
   (the same kernels), so it is timed once per resolution (launches of 50 steps, as a run between
   two displayed frames takes them) and divided by each dt_exp.
 * backward Euler (one Newton iteration, no line search, PCG at rtol 1e-5 and the fastest direct
-  solver installed: engine.linalg "direct", MKL PARDISO with the ``fast`` extra, else Eigen) at
+  solver installed: engine.solvers "direct", MKL PARDISO with the ``fast`` extra, else Eigen) at
   dt = 1/60 s and at the accuracy-matched dt (below); three consecutive steps are timed from the
   start state (bench.config.cloth_start_state), after one untimed step of the same integrator
   (the direct solver's pattern and symbolic analysis, once per model as in a run), and the median
@@ -52,7 +52,7 @@ E_SWEEP = {"quick": [1e1, 1e2, 1e3, 1e4, 1e5],
 SIDES = {"quick": [32, 64], "full": [32, 64, 128]}
 STEPS = {"quick": 3, "full": 3}           # timed backward-Euler steps per point (their median)
 PCG_CAP_S = {"quick": 1.5, "full": 4.0}   # skip PCG where one step is predicted to take longer
-DIRECT = "direct"                         # engine.linalg: PARDISO when installed, else Eigen's LL^T
+DIRECT = "direct"                         # engine.solvers: PARDISO when installed, else Eigen's LL^T
 CHECK_STEPS = {"quick": 200, "full": 500}
 
 
@@ -111,16 +111,16 @@ def _time_explicit(model, x0, v0, rounds=10, steps=50):
     ``rounds``."""
     import taichi as ti
 
-    from engine.integrators import get
+    from engine.integrators import Stepper
     st = model.make_state(x0, v0)
-    se = get("symplectic-euler")
+    se = Stepper(model, "symplectic-euler")
     for _ in range(3):  # untimed: the launch of this many steps compiled and bound for this model, caches warm
-        se.step(model, st, 1e-6, steps)
+        se.step(st, 1e-6, steps)
     ti.sync()
     ts = []
     for _ in range(rounds):
         t = time.perf_counter()
-        se.step(model, st, 1e-6, steps)
+        se.step(st, 1e-6, steps)
         ti.sync()
         ts.append((time.perf_counter() - t) / steps)
     return float(np.median(ts))
@@ -160,18 +160,19 @@ def _implicit_point(model, x0, v0, dt, solver, steps):
     allocates the work arrays)."""
     import taichi as ti
 
-    from engine.integrators import BackwardEuler, SolverError
+    from engine.integrators import BackwardEuler, SolverError, Stepper
     be = BackwardEuler(solver=solver, tol=1e-5, newton_iterations=1, line_search=False, max_iter=200000)
+    stepper = Stepper(model, be)
     st = model.make_state(x0, v0)
     ts, iters = [], []
     try:
         if solver != "pcg":   # PCG analyses nothing: its untimed step would only double its cost here
-            be.advance(model, st, dt)
+            stepper.advance(st, dt)
             ti.sync()
             st.assign(x0, v0, 0.0)
         for _ in range(steps):
             t = time.perf_counter()
-            be.advance(model, st, dt)
+            stepper.advance(st, dt)
             ti.sync()
             ts.append(time.perf_counter() - t)
             iters.append(be.last_info.linear_iterations[0])

@@ -43,7 +43,7 @@ def main(argv=None) -> int:
     from engine import runtime  # first: it silences Taichi's banner before importing taichi
 
     import taichi as ti
-    from engine.integrators import BackwardEuler, get
+    from engine.integrators import BackwardEuler, Stepper, get
     from engine.scenes import Rod
     from engine.scenes import cloth
     out["import_s"] = time.perf_counter() - t
@@ -59,10 +59,11 @@ def main(argv=None) -> int:
 
     paths = {}
     se = get("symplectic-euler")
-    paths["explicit-step"] = _first_and_second(lambda: (se.step(c.model, st, 1e-5, 1), ti.sync()))
+    se_stepper = Stepper(c.model, se)
+    paths["explicit-step"] = _first_and_second(lambda: (se_stepper.step(st, 1e-5, 1), ti.sync()))
     for solver in ("pcg", "cholesky"):
-        be = BackwardEuler(solver=solver, tol=1e-5, newton_iterations=1, line_search=False)
-        paths[f"backward-euler-{solver}"] = _first_and_second(lambda: (be.advance(c.model, st, 1e-3), ti.sync()))
+        be = Stepper(c.model, BackwardEuler(solver=solver, tol=1e-5, newton_iterations=1, line_search=False))
+        paths[f"backward-euler-{solver}"] = _first_and_second(lambda: (be.advance(st, 1e-3), ti.sync()))
     rod = Rod.uniform(1000, pinned=[0])
     rs = rod.new_state()
     paths["rod-run"] = _first_and_second(lambda: (rod.run(rs, 0.5 * rod.stable_dt(), 10), ti.sync()))

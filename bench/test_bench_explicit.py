@@ -16,9 +16,9 @@ from bench.interleave import Contender, measure_row
 from bench.timing import measure, sync
 from bench.variants import bending_variant, spring_variant
 from engine.energies.bending import gather_hinge_vectors_kernel, hinge_forces_kernel
-from engine.integrators import get as integrator
+from engine.integrators import Stepper
 from engine.integrators import kernels as step_kernels
-from engine.fields import float_dtype, scratch_vec3, zero_vec3
+from engine.fields import float_dtype, vec3_ndarray, zero_vec3
 
 SIZES = config.sizes("cloth")
 DT = 1e-5  # below the stable dt of every cloth here (E = 1e3): timing only, the cost does not depend on dt
@@ -41,10 +41,10 @@ def _contenders(c, bending, block):
     x0, v0 = config.cloth_start_state(c)
     dtype = np.dtype(float_dtype())
     st = c.model.make_state(x0, v0)
-    step = integrator("symplectic-euler")
+    stepper = Stepper(c.model, "symplectic-euler")
 
     def engine():
-        step.step(c.model, st, DT, block)
+        stepper.step(st, DT, block)
         sync()
     out = [Contender("engine", engine)]
     left = {}
@@ -101,7 +101,7 @@ def test_force_kernels(benchmark, side, kernel):
     x0, v0 = config.cloth_start_state(c)
     st = c.model.make_state(x0, v0)
     m = c.model
-    f = scratch_vec3(m, "bench_f")
+    f = vec3_ndarray(m.n)
     sp, be = c.springs, c.bending
     if kernel == "zero":
         call = lambda: zero_vec3(f)  # noqa: E731

@@ -12,6 +12,7 @@ from bench.timing import measure, sync
 from engine import runtime
 from engine.constants import CFL_SAFETY
 from engine.fields import float_dtype
+from engine.integrators import Stepper
 
 SIZES = config.sizes("rod")
 
@@ -66,8 +67,10 @@ def test_engine_rod_model_backward_euler(benchmark, nodes, solver):
     if be is None:
         pytest.skip(f"{solver} reached none of the relative tolerances {failed} in f32")
 
+    stepper = Stepper(model, be)
+
     def run():
-        be.advance(model, st, dt)
+        stepper.advance(st, dt)
         sync()
         iters.append(be.last_info.linear_iterations[0])
 

@@ -21,7 +21,7 @@ from bench import config, headline, traffic
 from bench.baseline import NumpyCloth, NumpyRod
 from bench.variants import VARIANTS, bending_variant, spring_variant, stream_copy
 from engine.constants import CFL_SAFETY, G
-from engine.integrators import BackwardEuler
+from engine.integrators import BackwardEuler, Stepper
 from engine.integrators import get as integrator
 from engine.fields import vec3_ndarray
 from engine.scenes import cloth
@@ -91,7 +91,7 @@ def test_numpy_and_engine_symplectic_steps_agree():
     c = cloth(12, E=1e3, rho=0.1, B=1e-3)
     dt = 0.5 * 1e-3
     st = c.model.make_state()
-    integrator("symplectic-euler").step(c.model, st, dt, 50)
+    Stepper(c.model, integrator("symplectic-euler")).step(st, dt, 50)
     x, v = c.model.X.copy(), np.zeros((c.model.n, 3))
     NumpyCloth(c.model, c.springs, c.bending).symplectic_euler(x, v, dt, 50)
     got = st.numpy()
@@ -188,9 +188,9 @@ def test_pardiso_factorisation_alone_solves_the_peers_system():
 @pytest.mark.parametrize("name", ["scipy-cg", "pyamg-cg", "pardiso", "pardiso-spsolve", "cholmod"])
 def test_sparse_peers_solve_the_engines_system(name):
     """Each implicit contender (bench/peers/sparse.py) solves the engine's backward-Euler system:
-    its matrix times random vectors equals engine.linalg.apply_system (relative 1e-12), and its
+    its matrix times random vectors equals engine.solvers.apply_system (relative 1e-12), and its
     step equals the engine's direct step to the tolerance it was given."""
-    from engine.linalg import apply_system
+    from engine.solvers import apply_system
     peers, c, x0, v0, dt, base = _sparse_peer_case(name)
     tol = 1e-10
     peer = peers.SparsePeer(name, base, tol=tol)
@@ -208,7 +208,7 @@ def test_sparse_peers_solve_the_engines_system(name):
     peer.step(x, v, dt)
     assert peer.last["residual"] <= tol
     st = c.model.make_state(x0, v0)
-    BackwardEuler(solver="cholesky", tol=1e-12, newton_iterations=1, line_search=False).advance(c.model, st, dt)
+    Stepper(c.model, BackwardEuler(solver="cholesky", tol=1e-12, newton_iterations=1, line_search=False)).step(st, dt)
     moved = np.max(np.abs(st.numpy().x - x0))
     assert moved > 1e-3
     assert np.max(np.abs(x - st.numpy().x)) <= 1e-6 * moved
@@ -222,7 +222,7 @@ def test_scipy_and_engine_backward_euler_steps_agree(solver):
     tol = 1e-10
     st = c.model.make_state(x0, v0)
     be = BackwardEuler(solver=solver, tol=tol, newton_iterations=1, line_search=False, max_iter=100000)
-    be.advance(c.model, st, dt)
+    Stepper(c.model, be).step(st, dt)
     base = NumpyCloth(c.model, c.springs, c.bending)
     x, v = x0.copy(), v0.copy()
     base.backward_euler(x, v, dt, tol=tol)
@@ -269,8 +269,8 @@ def test_rod_model_backward_euler_equals_rod_thomas(solver):
     x0 = np.asarray(model.X, dtype=np.float64).copy()
     x0[:, 0] += u0
     ms = model.make_state(x0)
-    BackwardEuler(solver=solver, tol=1e-12, newton_iterations=1, line_search=False, max_iter=100000).step(
-        model, ms, dt, 3)
+    Stepper(model, BackwardEuler(solver=solver, tol=1e-12, newton_iterations=1, line_search=False,
+                                 max_iter=100000)).step(ms, dt, 3)
     got = ms.numpy()
     assert np.max(np.abs(got.x[:, 0] - st.positions())) <= 1e-8 * np.max(np.abs(u0))
     assert np.max(np.abs(got.x[:, 1:])) == 0.0
@@ -300,7 +300,7 @@ def test_backward_euler_damps_a_mode_as_the_accuracy_model_says():
     e0 = 0.5 * 4.0 * 1e-12
     be = BackwardEuler(solver="cholesky", tol=1e-12, newton_iterations=1, line_search=False)
     n = 20
-    be.step(model, st, dt, n)
+    Stepper(model, be).step(st, dt, n)
     s = st.numpy()
     e = 0.5 * 1.0 * s.v[1, 0] ** 2 + 0.5 * 4.0 * (s.x[1, 0] - 1.0) ** 2
     assert math.isclose(e / e0, (1 + (w * dt) ** 2) ** (-n), rel_tol=1e-4)

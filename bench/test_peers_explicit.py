@@ -13,7 +13,7 @@ import pytest
 
 from bench import config, peers
 from engine.fields import float_dtype, vec3_ndarray
-from engine.integrators import get as integrator
+from engine.integrators import Stepper, get as integrator
 
 MISSING = {name: peers.missing(name) for name in peers.PACKAGES}
 PEERS = [pytest.param(name, id=name, marks=pytest.mark.skipif(MISSING[name] is not None,
@@ -116,7 +116,7 @@ def test_peer_steps_equal_engine_steps(peer, bending, engine_f64):
     dt = 1e-4
     for n_steps in (1, 3):
         st = c.model.make_state(x0, v0)
-        integrator("symplectic-euler").step(c.model, st, dt, n_steps)
+        Stepper(c.model, integrator("symplectic-euler")).step(st, dt, n_steps)
         ref = st.numpy()
         x, v = x0.copy(), v0.copy()
         _peer(peer, c, bending, np.float64).step(x, v, dt, n_steps)
@@ -129,7 +129,7 @@ def test_peer_steps_equal_engine_steps(peer, bending, engine_f64):
     # times dt/m plus its own storage round-off, the position by dt times that plus its storage round-off
     x32, v32 = x0.astype(np.float32), v0.astype(np.float32)
     st = c.model.make_state(x32.astype(np.float64), v32.astype(np.float64))
-    integrator("symplectic-euler").step(c.model, st, dt, 1)
+    Stepper(c.model, integrator("symplectic-euler")).step(st, dt, 1)
     ref = st.numpy()
     _peer(peer, c, bending, np.float32).step(x32, v32, dt, 1)
     assert x32.dtype == np.float32 and v32.dtype == np.float32

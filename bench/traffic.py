@@ -43,7 +43,7 @@ def kernel_bytes(kind: str, n: int, m: int = 0, h: int = 0, fb: int = 8) -> int:
         if h:
             total += kernel_bytes("bending_gather", n, m, h, fb)
         return total + kernel_bytes("update", n, fb=fb)
-    if kind == "cg_iteration":         # one fused PCG iteration (engine/linalg.py, springs + hinges)
+    if kind == "cg_iteration":         # one fused PCG iteration (engine/solvers/, springs + hinges)
         return (n * 3 * v                                       # p = z + beta p
                 + h * (12 * fb + 4 * IB + fb) + n * v           # s_h = w_h . p
                 + n * (v + 2 * fb + 2 * IB + v)                 # q = a M p + K p + hinge terms

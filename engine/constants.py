@@ -17,3 +17,9 @@ SERIAL_BELOW = 20000
 # Spring-only models below this many vertices run many explicit steps per kernel launch (one
 # serial kernel: a chain or a frame is cheaper to step serially than to launch kernels for).
 MANY_STEPS_BELOW = 50000
+
+# The one list of each kind of name (the CLI's choices, the registry and the kernels' method codes
+# are all read from these).
+EXPLICIT = ("forward-euler", "symplectic-euler", "velocity-verlet")   # explicit integrators
+INTEGRATOR_NAMES = EXPLICIT + ("backward-euler",)                    # every registered integrator
+SOLVERS = ("pcg", "cholesky", "pardiso", "direct")                   # backward Euler's linear solvers

@@ -7,8 +7,6 @@ takes ``ti.ndarray`` arguments, so it compiles once for all sizes.
 Conventions: a vec3 array has one entry per model vertex; ``inv_mass`` is 0 on pinned
 vertices (they never move and carry no unknowns), so "free" reductions skip them.
 """
-import weakref
-
 import numpy as np
 import taichi as ti
 
@@ -78,19 +76,20 @@ def int_ndarray(values: np.ndarray):
     return a
 
 
-_scratch: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+class WorkArrays:
+    """Named vec3 work arrays of ``n`` entries, allocated on first use and owned by whoever holds
+    this object (a :class:`engine.integrators.stepper.Stepper`, a linear solver's set-up, one static
+    solve): nothing is kept per model behind the caller's back."""
 
+    def __init__(self, n: int):
+        self.n = int(n)
+        self._arrays: dict = {}
 
-def scratch_vec3(model, name: str):
-    """A named scratch vec3 ndarray for ``model`` (one entry per vertex), allocated once and owned by
-    the solvers that ask for it, not by the model (a Model is not changed after it is built)."""
-    d = _scratch.get(model)
-    if d is None:
-        d = _scratch[model] = {}
-    a = d.get(name)
-    if a is None:
-        a = d[name] = vec3_ndarray(model.n)
-    return a
+    def vec3(self, name: str):
+        a = self._arrays.get(name)
+        if a is None:
+            a = self._arrays[name] = vec3_ndarray(self.n)
+        return a
 
 
 # -- small per-vertex kernels ------------------------------------------------------------------

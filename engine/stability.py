@@ -19,7 +19,6 @@ with a safety factor, :data:`engine.constants.CFL_SAFETY`).
 """
 
 import math
-import weakref
 
 import numpy as np
 import taichi as ti
@@ -61,9 +60,6 @@ def _minv_scale(y: vec3_array, u: vec3_array, inv_mass: scalar_array, scale: flo
         u[i] = scale * inv_mass[i] * y[i]
 
 
-_scratch: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
-
-
 def lambda_max_power(model, x=None, psd: bool = False, iters: int = 500, rtol: float = 1e-8,
                      seed: int = 0) -> float:
     """Largest-magnitude eigenvalue of M^-1 H restricted to free vertices, by power iteration
@@ -72,10 +68,7 @@ def lambda_max_power(model, x=None, psd: bool = False, iters: int = 500, rtol: f
     x = model.X_nd if x is None else x
     if not model.free.any():
         return 0.0
-    work = _scratch.get(model)
-    if work is None:
-        work = _scratch[model] = (vec3_ndarray(model.n), vec3_ndarray(model.n))
-    u, y = work
+    u, y = vec3_ndarray(model.n), vec3_ndarray(model.n)  # this estimate's own work arrays
     rng = np.random.default_rng(seed)
     u0 = rng.standard_normal((model.n, 3))
     u0[model.pinned] = 0.0

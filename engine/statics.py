@@ -8,7 +8,7 @@ energy": the rest shape under load is the minimiser of the potential) solves
 i.e. the net force f_i(x) + m_i g = 0 at every free vertex (f = -grad W).  Newton with the
 PSD Hessian H (springs (S4), bending Gauss-Newton) and a Levenberg term:
 
-    (H(x) + mu M) dx = f(x) + M g      (free rows; pinned dx = 0, engine.linalg (L2))        (N2)
+    (H(x) + mu M) dx = f(x) + M g      (free rows; pinned dx = 0, engine.solvers (L2))        (N2)
     mu = nu lambda_ref min(1, r) + 1e-14 lambda_ref
 
 lambda_ref is the Gershgorin bound on the largest eigenvalue of M^-1 H at x0, so nu is a
@@ -68,8 +68,8 @@ import taichi as ti
 
 from engine.errors import ParameterError
 from engine.stability import gershgorin_lambda_max, lambda_max_power
-from engine.linalg import SOLVERS, SolverError, make_solver
-from engine.fields import (scratch_vec3, axpy_into, copy_vec3, dot_vec3, float_dtype, mass_dot, scalar_array, vec3_array,
+from engine.solvers import SOLVERS, SolverError, make_solver
+from engine.fields import (WorkArrays, axpy_into, copy_vec3, dot_vec3, float_dtype, mass_dot, scalar_array, vec3_array,
                            vec3_ndarray, zero_vec3)
 from engine.model import Model
 
@@ -134,7 +134,7 @@ def solve_static(model: Model, x0=None, tol: float = 1e-10, max_iter: int = 100,
     relative tolerance ``linear_tol`` (and ``max_linear_iter`` CG iterations).  ``exact``:
     switch to the exact Hessian once r < ``exact_below``; ``verbose``: print each step.
     Pinned vertices stay at their x0 positions (so x0 can pull a sheet).
-    Non-convergence raises :class:`engine.linalg.SolverError` (one line: residual, tolerance,
+    Non-convergence raises :class:`engine.solvers.SolverError` (one line: residual, tolerance,
     iterations, reason), or with ``raise_on_failure=False`` returns ``converged=False``.
     """
     if solver not in SOLVERS:
@@ -153,7 +153,8 @@ def solve_static(model: Model, x0=None, tol: float = 1e-10, max_iter: int = 100,
     lin = make_solver(solver, tol=linear_tol, max_iter=max_linear_iter)
     x = vec3_ndarray(n, x_start)
     xref = vec3_ndarray(n, x_start)
-    f, dx, trial = scratch_vec3(model, "st_f"), scratch_vec3(model, "st_dx"), scratch_vec3(model, "st_trial")
+    work = WorkArrays(n)  # this solve's own work arrays
+    f, dx, trial = work.vec3("f"), work.vec3("dx"), work.vec3("trial")
     mass = model.mass[:, None]
     g = model.gravity[None, :]
     free = model.free

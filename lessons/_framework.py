@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
+from engine.constants import EXPLICIT, INTEGRATOR_NAMES, SOLVERS
 from engine.errors import BlowUpError, ParameterError
 
 COMPARISONS = ("rel", "abs", "<=", ">=")
@@ -110,9 +111,9 @@ def check_interrupt() -> None:
 
 # -------------------------------------------------------------------------- stepping
 
-INTEGRATOR_CHOICES = ("default", "forward-euler", "symplectic-euler", "velocity-verlet", "backward-euler")
-SOLVER_CHOICES = ("default", "pcg", "cholesky", "pardiso", "direct")
-EXPLICIT_INTEGRATORS = ("forward-euler", "symplectic-euler", "velocity-verlet")
+INTEGRATOR_CHOICES = ("default",) + INTEGRATOR_NAMES
+SOLVER_CHOICES = ("default",) + SOLVERS
+EXPLICIT_INTEGRATORS = EXPLICIT
 
 
 @dataclass
@@ -309,7 +310,7 @@ class Lesson:
     config: type
     stages: list[Stage]
     order: int = 100
-    camera: str = "outside"  # the default camera of its runs' views (lessons.recorder.CAMERAS)
+    camera: str = "outside"  # the default camera of its runs' views (lessons.app.blueprint.CAMERAS)
     validate: Callable[[Any], None] | None = None  # extra up-front checks (e.g. build meshes)
 
 
@@ -448,7 +449,7 @@ def _summarise_integrators(used: list[str]) -> str:
 
 
 def write_json_atomic(path: str | os.PathLike, data, complete: bool = True) -> Path:
-    """Write ``data`` as JSON to ``path`` atomically (lessons.outfile: a regular file or a new name
+    """Write ``data`` as JSON to ``path`` atomically (lessons.app.outfile: a regular file or a new name
     only; a write error keeps the earlier file); returns where it went (the final name, or
     ``<stem>.partial.json`` when not ``complete``)."""
     from lessons.app.outfile import OutputFile

@@ -23,14 +23,14 @@ import pytest
 from engine import diagnostics
 from engine import mesh as meshes
 from engine.errors import BlowUpError
-from engine.integrators import make_integrator, stable_dt_estimate
+from engine.integrators import Stepper, make_integrator, stable_dt_estimate
 from engine.integrators.explicit import run_many_steps as run_fused
 from engine.model import Model
 from lessons.app.recorder import NullRecorder, Recorder, summarize
 from engine.scenes import Rod
 from lessons import rod_waves
 from lessons._framework import Lesson, StageContext
-from lessons._scene import simulate, simulate_method
+from lessons._scene import simulate
 
 
 # --------------------------------------------------------------------------------------------
@@ -100,9 +100,10 @@ def first_bad_step(model, X, v0, integ, dt, bound, n_steps):
     """0-based index of the first step after which K + W > bound (or is not finite), by plain
     stepping without any check; None if there is none."""
     state = model.make_state(X, v0)
-    integ.begin(model, state)
+    stepper = Stepper(model, integ)
+    stepper.begin(state)
     for s in range(n_steps):
-        integ.advance(model, state, dt)
+        stepper.advance(state, dt)
         E = diagnostics.kinetic_energy(model, state) + model.potential_energy(state.x)
         if not (E <= bound):
             return s, E
@@ -329,8 +330,8 @@ def test_fused_spring_kernel_blowup_at_its_step(method, over):
     state = model.make_state(X, v0)
 
     with pytest.raises(BlowUpError) as info:
-        simulate_method(make_ctx(rec), "chain", model, state, dt, 5000, method, 7, bound,
-                        log=lambda r, st: r.points("x", st.x.to_numpy()))
+        simulate(make_ctx(rec), "chain", model, state, dt, 5000, method, 7, bound,
+                 log=lambda r, st: r.points("x", st.x.to_numpy()), chosen=True)
     assert info.value.step == expected
     text = assert_recorded_up_to(rec, expected, 7)
     assert text == str(info.value)

@@ -16,7 +16,7 @@ Measured and asserted:
   per task and tasks are ceil(n / block_dim) with an adaptive block_dim that depends on the
   thread count, so the last bits differ. Asserted: equal to far below the solver tolerance.
 - implicit, 2 threads, run to run: Cholesky (started from the explicit phase's state) is
-  bitwise reproducible: the assembly kernels (engine.assembly.assemble_mass and the
+  bitwise reproducible: the assembly kernels (engine.solvers.assembly.assemble_mass and the
   per-stencil element_assembler) append their triplets to the SparseMatrixBuilder in a serialized loop, so
   duplicates are always summed in the same order (from a parallel loop, 1 run in 6 differed).
   PCG was reproducible in every run measured, but its parallel reductions do not guarantee
@@ -38,7 +38,7 @@ import numpy as np
 from engine import runtime
 info = runtime.init()
 from engine import scenes
-from engine.integrators import make_integrator, stable_dt_estimate
+from engine.integrators import Stepper, make_integrator, stable_dt_estimate
 
 cloth = scenes.cloth(32, B=1e-3)
 model = cloth.model
@@ -55,13 +55,13 @@ def digest(phase):
     return hashlib.sha256(np.ascontiguousarray(s.x).tobytes() + np.ascontiguousarray(s.v).tobytes()).hexdigest()
 
 dt = 0.5 * stable_dt_estimate(model)
-make_integrator("symplectic-euler").step(model, state, dt, 300)
+Stepper(model, make_integrator("symplectic-euler")).step(state, dt, 300)
 out["symplectic-euler"] = digest("symplectic-euler")
 after_explicit = state.numpy()
-make_integrator("backward-euler", solver="pcg").step(model, state, 2e-3, 3)
+Stepper(model, make_integrator("backward-euler", solver="pcg")).step(state, 2e-3, 3)
 out["backward-euler-pcg"] = digest("backward-euler-pcg")
 state = model.make_state(after_explicit.x, after_explicit.v)  # Cholesky from the same explicit state
-make_integrator("backward-euler", solver="cholesky").step(model, state, 2e-3, 3)
+Stepper(model, make_integrator("backward-euler", solver="cholesky")).step(state, 2e-3, 3)
 out["backward-euler-cholesky"] = digest("backward-euler-cholesky")
 np.savez(sys.argv[1], **arrays)
 print(json.dumps(out))

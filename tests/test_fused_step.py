@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from engine.integrators import kernels as K
-from engine.integrators.explicit import (SymplecticEuler, VelocityVerlet, cloth_blocks, cloth_plan, cloth_stepper,
-                                         one_launch_plan)
+from engine.integrators.explicit import SymplecticEuler, VelocityVerlet, cloth_blocks, cloth_plan, cloth_stepper
+from engine.integrators.stepper import Stepper
 from engine.model import Model
 from engine.scenes import cloth
 from engine.stability import stable_dt_estimate
@@ -17,9 +17,14 @@ INTEGRATORS = {"symplectic-euler": SymplecticEuler, "velocity-verlet": VelocityV
 
 def run(model, v0, dt, n, method, fused):
     st = model.make_state(None, v0)
-    INTEGRATORS[method](fused).step(model, st, dt, n)
+    Stepper(model, INTEGRATORS[method](fused)).step(st, dt, n)
     s = st.numpy()
     return s.x, s.v, st.t
+
+
+def one_launch_plan(model):
+    """The one-launch step a Stepper plans for symplectic Euler on ``model`` (None: generic path)."""
+    return Stepper(model, SymplecticEuler()).cloth
 
 
 def start(model, seed=3, scale=0.05):
@@ -117,14 +122,19 @@ def test_direct_launch_is_taichis_launch(monkeypatch):
 
 
 def test_new_spring_coefficients_reach_the_fused_step():
-    """The plan copies c/L; SpringEnergy.set_coefficients makes the planner build a new one."""
+    """The plan copies c/L; after SpringEnergy.set_coefficients a Stepper plans again."""
     c = cloth(10, B=1e-3)
     model = c.model
     v0 = start(model, seed=9)
     dt = 0.25 * stable_dt_estimate(model)
-    run(model, v0, dt, 5, "symplectic-euler", True)   # builds the plan for the first c
+    stepper = Stepper(model, SymplecticEuler(True))
+    first = stepper.cloth
+    stepper.step(model.make_state(None, v0), dt, 5)   # the plan for the first c
     c.springs.set_coefficients(2.0 * c.springs.c_np)
-    xa, va, _ = run(model, v0, dt, 30, "symplectic-euler", True)
+    st = model.make_state(None, v0)
+    stepper.step(st, dt, 30)
+    assert stepper.cloth is not first
+    xa, va = st.numpy().x, st.numpy().v
     xb, vb, _ = run(model, v0, dt, 30, "symplectic-euler", False)
     assert np.array_equal(xa, xb) and np.array_equal(va, vb)
 

@@ -10,7 +10,7 @@ from engine import diagnostics, integrators, mesh
 from engine.energies.bending import BendingEnergy
 from engine.energies.springs import SpringEnergy
 from engine.integrators import BackwardEuler, SolverError, make_integrator
-from engine.integrators.explicit import run
+from engine.integrators.stepper import Stepper, run
 from engine.stability import stable_dt_estimate
 from engine.model import Model
 
@@ -88,7 +88,7 @@ def test_one_iteration_is_baraff_witkin_step(solver):
     dt = 0.05
     be = make_integrator("backward-euler", solver=solver, tol=1e-12, line_search=False)
     st = model.make_state(x0, v0)
-    be.step(model, st, dt)
+    Stepper(model, be).step(st, dt)
     free = np.repeat(model.free, 3)
     K = dense_K(model, x0)[np.ix_(free, free)]
     M = np.diag(np.repeat(model.mass, 3)[free])
@@ -114,7 +114,7 @@ def test_newton_converges_to_backward_euler_with_monotone_objective(alpha, beta)
                        rayleigh_alpha=alpha, rayleigh_beta=beta)
     st = model.make_state(x0, v0)
     v0 = st.numpy().v
-    be.step(model, st, dt)
+    Stepper(model, be).step(st, dt)
     info = be.last_info
     obj = np.asarray(be.last_objectives)
     assert len(obj) >= 3 and np.all(np.diff(obj) < 0), obj
@@ -139,7 +139,7 @@ def test_line_search_backtracks_on_a_violent_step():
     be = BackwardEuler(solver="cholesky", newton_iterations=40, newton_tol=1e-9)
     short_steps = 0
     for _ in range(5):
-        be.step(model, st, 0.2)
+        Stepper(model, be).step(st, 0.2)
         obj = np.asarray(be.last_objectives)
         assert np.all(np.diff(obj) < 0), obj
         short_steps += sum(s < 1.0 for s in be.last_info.step_sizes)
@@ -152,7 +152,7 @@ def test_pinned_vertices_never_move(solver):
     st = model.make_state()
     dt = 100 * stable_dt_estimate(model)
     be = make_integrator("backward-euler", solver=solver)
-    be.step(model, st, dt, 10)
+    Stepper(model, be).step(st, dt, 10)
     x, v, _ = st.numpy()
     assert np.array_equal(x[model.pinned], model.X[model.pinned])
     assert np.all(v[model.pinned] == 0.0)
@@ -166,7 +166,7 @@ def test_nonconvergent_linear_solve_raises_and_keeps_state():
     before = st.numpy()
     be = BackwardEuler(solver="pcg", tol=1e-10, max_iter=2)
     with pytest.raises(SolverError) as exc:
-        be.step(model, st, 0.05)
+        Stepper(model, be).step(st, 0.05)
     msg = str(exc.value)
     assert "\n" not in msg and "pcg" in msg and "tol 1.0e-10" in msg and "2 iterations" in msg, msg
     after = st.numpy()
@@ -187,7 +187,7 @@ def test_stable_at_100x_explicit_dt(solver):
     be = make_integrator("backward-euler", solver=solver)
     E = [diagnostics.total_energy(model, st)]
     for _ in range(30):
-        be.step(model, st, 100 * dt_explicit)
+        Stepper(model, be).step(st, 100 * dt_explicit)
         E.append(diagnostics.total_energy(model, st))
     E = np.asarray(E)
     assert np.all(np.isfinite(E))
@@ -217,7 +217,7 @@ def test_mode_energy_decays_by_one_over_one_plus_w2dt2(solver):
             st = model.make_state(X + u, 0.3 * u)  # velocity along the same mode
             E0 = diagnostics.total_energy(model, st)
             for _ in range(3):
-                be.step(model, st, dt)
+                Stepper(model, be).step(st, dt)
                 E1 = diagnostics.total_energy(model, st)
                 assert E1 / E0 == pytest.approx(1.0 / (1.0 + w2[mode] * dt * dt), rel=1e-8)
                 E0 = E1
@@ -262,7 +262,7 @@ def test_first_order_convergence_vs_verlet_second_order():
     for n in (20, 40, 80):
         for name, integ in (("backward-euler", be), ("velocity-verlet", integrators.get("velocity-verlet"))):
             st = model.make_state(X, v0)
-            integ.step(model, st, T / n, n)
+            Stepper(model, integ).step(st, T / n, n)
             errors[name].append(np.abs(st.numpy().x - ref).max())
     be_ratio = np.array(errors["backward-euler"][:-1]) / np.array(errors["backward-euler"][1:])
     vv_ratio = np.array(errors["velocity-verlet"][:-1]) / np.array(errors["velocity-verlet"][1:])
@@ -271,7 +271,7 @@ def test_first_order_convergence_vs_verlet_second_order():
 
 
 def test_works_with_run_and_blowup_checks():
-    """explicit.run drives any integrator with begin/advance; backward Euler's energy never grows."""
+    """engine.integrators.run drives any integrator with begin/advance; backward Euler's energy never grows."""
     model, x0, v0 = spring_net()
     st = model.make_state(x0, v0)
     energies = run(model, st, 50 * stable_dt_estimate(model), 20, integrator="backward-euler",

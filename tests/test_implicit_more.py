@@ -19,9 +19,9 @@ import scipy.sparse.linalg as spla
 from scipy.integrate import solve_ivp
 
 from engine import diagnostics
-from engine.integrators import BackwardEuler, SolverError, get, make_integrator
+from engine.integrators import BackwardEuler, SolverError, Stepper, get, make_integrator
 from engine.stability import lambda_max_power
-from engine.linalg import make_solver
+from engine.solvers import make_solver
 from engine.fields import vec3_ndarray
 from engine.model import Model
 from engine.scenes import cloth
@@ -57,7 +57,7 @@ def test_cloth_stable_at_100x_the_explicit_limit(solver):
     be = make_integrator("backward-euler", solver=solver, tol=1e-8)
     energies, solves = [], 0
     for _ in range(20):
-        be.step(model, st, dt)
+        Stepper(model, be).step(st, dt)
         energies.append(diagnostics.total_energy(model, st))
         # a step that starts converged (settled: |grad Phi| <= newton_tol |M g|) solves nothing
         assert all(r <= 1e-8 for r in be.last_info.linear_residuals)
@@ -92,7 +92,7 @@ def test_in_plane_cloth_mode_energy_factor_with_one_newton_iteration(solver, wdt
     E0 = diagnostics.total_energy(model, st)
     be = make_integrator("backward-euler", solver=solver, tol=1e-12, newton_iterations=1)
     for _ in range(2):
-        be.step(model, st, dt)
+        Stepper(model, be).step(st, dt)
         E1 = diagnostics.total_energy(model, st)
         assert E1 / E0 == pytest.approx(1.0 / (1.0 + wdt * wdt), rel=1e-5)
         E0 = E1
@@ -139,11 +139,11 @@ def test_orders_and_symplectic_euler_half_step_start():
         for name in errors:
             integ = be if name == "backward-euler" else get(name)
             st = model.make_state(X, v0)
-            integ.step(model, st, dt, n)
+            Stepper(model, integ).step(st, dt, n)
             finals[name] = st.numpy().x
             errors[name].append(np.abs(finals[name] - ref).max())
         st = model.make_state(X, v0 - 0.5 * dt * a0)  # the velocity half a step earlier
-        get("symplectic-euler").step(model, st, dt, n)
+        Stepper(model, get("symplectic-euler")).step(st, dt, n)
         shifted.append(np.abs(st.numpy().x - finals["velocity-verlet"]).max() / errors["velocity-verlet"][-1])
     order = {k: np.log2(np.asarray(e[:-1]) / np.asarray(e[1:])) for k, e in errors.items()}
     assert np.all(np.abs(order["backward-euler"] - 1) < 0.1), (order, errors)
@@ -157,7 +157,7 @@ def test_pcg_cholesky_and_scipy_sparse_agree_on_a_backward_euler_system():
     scene = cloth(7, E=1e3, rho=0.1, B=1e-4)
     model = scene.model
     st = model.make_state()
-    make_integrator("backward-euler", solver="cholesky").step(model, st, 0.02, 3)
+    Stepper(model, make_integrator("backward-euler", solver="cholesky")).step(st, 0.02, 3)
     x = st.numpy().x
     dt = 1.0 / 60.0
     a = 1.0 / dt ** 2
@@ -197,7 +197,7 @@ def test_reported_linear_residual_is_the_true_one_and_below_tol(solver):
     dt = 0.02
     tol = 1e-6
     be = BackwardEuler(solver=solver, tol=tol, newton_iterations=1, line_search=False)
-    be.step(model, st, dt)
+    Stepper(model, be).step(st, dt)
     x1 = st.numpy().x
     A, free = dense_system(model, x0, 1.0 / dt ** 2)
     b = (forces(model, x0) + model.mass[:, None] * v0 / dt).reshape(-1)[free]
@@ -216,7 +216,7 @@ def test_pins_never_move(solver, options):
     model, X = scene.model, scene.model.X
     st = model.make_state(X, np.random.default_rng(0).standard_normal(X.shape))
     be = make_integrator("backward-euler", solver=solver, **options)
-    be.step(model, st, 50.0 * explicit_limit(model), 4)
+    Stepper(model, be).step(st, 50.0 * explicit_limit(model), 4)
     x, v, _ = st.numpy()
     assert np.array_equal(x[model.pinned], X[model.pinned]) and np.all(v[model.pinned] == 0.0)
     assert np.abs(x[model.free] - X[model.free]).max() > 1e-3  # the rest did move
@@ -232,7 +232,7 @@ def test_newton_line_search_decreases_the_objective_every_iteration(solver):
     weight = float(model.mass.sum()) * 9.81
     iterations = 0
     for _ in range(8):
-        be.step(model, st, dt)
+        Stepper(model, be).step(st, dt)
         obj = np.asarray(be.last_objectives)
         info = be.last_info
         assert len(obj) == len(info.step_sizes) + 1 and np.all(np.diff(obj) < 0), obj
@@ -248,16 +248,16 @@ def test_nonconvergent_solve_mid_run_raises_and_keeps_the_state():
     scene = cloth(6, E=1e4, rho=0.1, B=1e-4)
     model = scene.model
     st = model.make_state()
-    make_integrator("backward-euler").step(model, st, 1.0 / 60.0, 3)  # fine with the defaults
+    Stepper(model, make_integrator("backward-euler")).step(st, 1.0 / 60.0, 3)  # fine with the defaults
     before = st.numpy()
     starved = BackwardEuler(solver="pcg", tol=1e-8, max_iter=3)
     with pytest.raises(SolverError) as exc:
-        starved.step(model, st, 1.0 / 60.0)
+        Stepper(model, starved).step(st, 1.0 / 60.0)
     msg = str(exc.value)
     assert "\n" not in msg and "pcg" in msg and "3 iterations" in msg and "t=0.05" in msg, msg
     after = st.numpy()
     assert np.array_equal(after.x, before.x) and np.array_equal(after.v, before.v) and after.t == before.t
-    make_integrator("backward-euler").step(model, st, 1.0 / 60.0)  # and the run can go on
+    Stepper(model, make_integrator("backward-euler")).step(st, 1.0 / 60.0)  # and the run can go on
     assert st.t == pytest.approx(4.0 / 60.0)
 
 
@@ -272,6 +272,6 @@ def test_newton_on_a_settled_hanging_cloth_stops_at_once():
     res = solve_static(model, model.X_nd.to_numpy(), tol=1e-9, max_iter=100)
     state = model.make_state(res.x)
     integ = make_integrator("backward-euler", solver="cholesky", newton_iterations=50)
-    integ.step(model, state, 1.0 / 60.0, 3)
+    Stepper(model, integ).step(state, 1.0 / 60.0, 3)
     assert integ.last_info.newton_converged
     assert len(integ.last_info.gradient_norms) <= 2

@@ -62,7 +62,7 @@ def test_a_signal_whose_exception_was_swallowed_stops_the_run_at_the_next_chunk(
     next chunk instead of running on."""
     from lessons.app.recorder import NullRecorder
     from lessons._framework import Terminated, _pending_signal, note_signal
-    from lessons._scene import recorded_run
+    from lessons._scene import _recorded_run
 
     class Ctx:
         rec = NullRecorder()
@@ -83,7 +83,7 @@ def test_a_signal_whose_exception_was_swallowed_stops_the_run_at_the_next_chunk(
     expected = KeyboardInterrupt if sig == signal.SIGINT else Terminated
     try:
         with pytest.raises(expected):
-            recorded_run(Ctx(), "run", 1e-3, 1000, 10, advance, state=None)
+            _recorded_run(Ctx(), "run", 1e-3, 1000, 10, advance, state=None)
     finally:
         _pending_signal.clear()
     assert chunks == [0, 10, 20]

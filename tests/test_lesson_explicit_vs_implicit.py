@@ -8,7 +8,7 @@ import math
 
 import pytest
 
-from engine.linalg import pardiso_available
+from engine.solvers import pardiso_available
 
 from engine.constants import G
 from engine.errors import ParameterError

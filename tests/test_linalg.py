@@ -1,4 +1,4 @@
-"""Linear solvers of engine.linalg: PCG (every code path) and sparse Cholesky against a dense
+"""Linear solvers of engine.solvers: PCG (every code path) and sparse Cholesky against a dense
 scipy solve of the same filtered system (M/dt^2 + H, pinned rows and columns eliminated)."""
 import math
 
@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 import scipy.linalg as sla
 
-from engine import linalg, mesh
+from engine import mesh, solvers
 from engine.energies.base import stencil_triplets
 from engine.energies.bending import BendingEnergy
 from engine.energies.springs import SpringEnergy
-from engine.linalg import SolverError, make_solver
+from engine.solvers import SolverError, make_solver
 from engine.fields import vec3_ndarray
 from engine.model import Model
 
@@ -69,14 +69,14 @@ def dense_system(model, x_nd, mass_coef, hess_coef=1.0, psd=True):
 
 SOLVER_VARIANTS = {
     "pcg": lambda tol: make_solver("pcg", tol=tol),                                     # whole-loop serial kernel
-    "pcg-parallel": lambda tol: linalg.PCGSolver(tol, 1000, serial=False),              # 3 launches / iteration
-    "pcg-generic": lambda tol: linalg.PCGSolver(tol, 1000, fused=False),                 # per-energy products
+    "pcg-parallel": lambda tol: solvers.PCGSolver(tol, 1000, serial=False),              # 3 launches / iteration
+    "pcg-generic": lambda tol: solvers.PCGSolver(tol, 1000, fused=False),                 # per-energy products
     "cholesky": lambda tol: make_solver("cholesky", tol=tol),
     "pardiso": lambda tol: make_solver("pardiso", tol=tol),
     "direct": lambda tol: make_solver("direct", tol=tol),
 }
 NO_PARDISO = "MKL PARDISO not installed (pip install -e '.[fast]')"
-needs_pardiso = pytest.mark.skipif(not linalg.pardiso_available(), reason=NO_PARDISO)
+needs_pardiso = pytest.mark.skipif(not solvers.pardiso_available(), reason=NO_PARDISO)
 DIRECT = ["cholesky", pytest.param("pardiso", marks=needs_pardiso)]
 
 
@@ -144,7 +144,7 @@ def test_apply_system_matches_dense_product():
     p = np.random.default_rng(2).standard_normal((model.n, 3))
     p[model.pinned] = 0.0
     q = vec3_ndarray(model.n)
-    linalg.apply_system(model, x_nd, vec3_ndarray(model.n, p), q, 50.0, 2.0)
+    solvers.apply_system(model, x_nd, vec3_ndarray(model.n, p), q, 50.0, 2.0)
     A, free = dense_system(model, x_nd, 50.0, 2.0)
     qq = q.to_numpy().reshape(-1)
     assert np.abs(qq[free] - A @ p.reshape(-1)[free]).max() <= 1e-12 * np.abs(qq).max()
@@ -180,7 +180,7 @@ def test_direct_solver_reports_indefinite_matrix(name):
 
 @needs_pardiso
 def test_csr_pattern_holds_the_upper_triangle_and_is_reproducible():
-    """The fixed CSR pattern (engine.assembly (P1)) holds every nonzero of the upper triangle of
+    """The fixed CSR pattern (engine.solvers.assembly (P1)) holds every nonzero of the upper triangle of
     the dense filtered matrix (rows sorted, no duplicates); its values are that matrix exactly
     (to round-off); assembling twice gives bitwise the same values; pardiso's solution of a
     pinned, bent cloth matches the dense solve."""
@@ -214,6 +214,7 @@ def test_cholesky_refactorizes_with_cached_pattern():
     model, x = cloth(5)
     solver = make_solver("cholesky", tol=1e-12)
     b = np.random.default_rng(4).standard_normal((model.n, 3))
+    entries = []
     for k, scale in enumerate([0.0, 0.05, 0.1]):
         xk = model.X + scale * np.random.default_rng(k).standard_normal(x.shape)
         x_nd = vec3_ndarray(model.n, xk)
@@ -222,33 +223,35 @@ def test_cholesky_refactorizes_with_cached_pattern():
         A, free = dense_system(model, x_nd, 1e3)
         assert info.converged
         assert np.abs(y.to_numpy().reshape(-1)[free] - np.linalg.solve(A, b.reshape(-1)[free])).max() < 1e-10
-    entry = solver._cache[model]
-    assert entry["analyzed"] and entry["capacity"] == linalg.triplet_capacity(model)
+        entries.append(solver._entry(model))
+    entry = entries[0]
+    assert all(e is entry for e in entries)  # one set-up (pattern, analysis) for the model
+    assert entry["analyzed"] and entry["capacity"] == solvers.triplet_capacity(model)
 
 
 def test_triplet_capacity_is_exact_formula():
     model, _ = cloth(5)
     springs, bending = model.energies
-    assert linalg.triplet_capacity(model) == 3 * model.n + 21 * springs.m + 78 * bending.n_hinges
+    assert solvers.triplet_capacity(model) == 3 * model.n + 21 * springs.m + 78 * bending.n_hinges
     # (T1) 6k + 9k(k-1)/2 is the lower triangle of one k-vertex element's 3k x 3k Hessian
     for k in range(1, 7):
         assert stencil_triplets(k) == np.tril(np.ones((3 * k, 3 * k))).sum()
     with pytest.raises(NotImplementedError, match="no per-element block layout"):
-        linalg.triplet_capacity(cloth(4, springs=NoStencilSprings)[0])
+        solvers.triplet_capacity(cloth(4, springs=NoStencilSprings)[0])
 
 
 def test_code_paths_follow_the_declared_products():
     """The PCG fast path is taken for energies declaring "pair-gather" + "rank-one" and not for
     the same energies declaring nothing; Cholesky only needs the stencil, so it is bitwise the
     same for both."""
-    solver = linalg.PCGSolver(1e-10)
+    solver = solvers.PCGSolver(1e-10)
     x_of = {}
     ys = {}
     for name, kw in (("declared", {}), ("plain", dict(springs=PlainSprings, bending=PlainBending))):
         model, x = cloth(5, **kw)
         x_nd = vec3_ndarray(model.n, x)
         blocks = {}
-        linalg._hessian_plan(model, x_nd, True, None, blocks)
+        solvers.operator._hessian_plan(model, x_nd, True, None, blocks)
         fused = solver._fused_setup(model, solver._work(model), x_nd, True, blocks)
         assert (fused is not None) == (name == "declared")
         b = vec3_ndarray(model.n, np.random.default_rng(3).standard_normal((model.n, 3)))

@@ -10,8 +10,8 @@ runtime.init(cache_dir={cache!r})
 from engine.scenes import cloth
 c = cloth(8)
 st = c.model.make_state()
-from engine.integrators import get
-get("symplectic-euler").step(c.model, st, 1e-4, 3)
+from engine.integrators import Stepper, get
+Stepper(c.model, get("symplectic-euler")).step(st, 1e-4, 3)
 """
 
 

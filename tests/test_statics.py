@@ -6,7 +6,7 @@ import pytest
 from engine import mesh
 from engine.energies.bending import BendingEnergy
 from engine.energies.springs import SpringEnergy
-from engine.linalg import SolverError
+from engine.solvers import SolverError
 from engine.fields import vec3_ndarray
 from engine.model import Model
 from engine.statics import solve_static

@@ -12,7 +12,7 @@ matrix built), as the engine checks its own with a matrix-free product:
                     near-null-space modes), rebuilt every step (the matrix changes), as the
                     preconditioner of CG to ``tol``;
 ``pardiso``         MKL PARDISO (pypardiso's ctypes binding) with the engine's settings
-                    (engine.linalg.PARDISO_IPARMS: SPD, METIS nested dissection, no refinement
+                    (engine.solvers.PARDISO_IPARMS: SPD, METIS nested dissection, no refinement
                     inside, the same thread count): the symbolic analysis once, outside the clock,
                     the numeric factorisation and solve every step;
 ``pardiso-spsolve`` pypardiso.spsolve(A, b) as its README shows it (analysis on every call);
@@ -63,7 +63,7 @@ def available(name: str) -> str | None:
 
 
 def _quiet_openmp() -> None:
-    """The engine's setting (engine.linalg): MKL's OpenMP threads sleep when a solve ends rather
+    """The engine's setting (engine.solvers): MKL's OpenMP threads sleep when a solve ends rather
     than spin, so both drive PARDISO under the same conditions."""
     os.environ.setdefault("KMP_BLOCKTIME", "0")
 
@@ -153,8 +153,9 @@ class SparsePeer:
         y, setup, iterations = self.solve(A, b)
         t2 = time.perf_counter()
         self.cloth.apply_step(x, v, y, dt)
-        nb = _norm(b)
-        residual = _norm(b - product(A, y, upper=self.name.startswith("pardiso"))) / nb if nb > 0 else 0.0
+        from engine.solvers.direct import norm  # without BLAS, as the engine's check
+        nb = norm(b)
+        residual = norm(b - product(A, y, upper=self.name.startswith("pardiso"))) / nb if nb > 0 else 0.0
         self.last = dict(assembly_s=t1 - t0, setup_s=setup, solve_s=t2 - t1 - setup, iterations=int(iterations),
                          residual=float(residual))
         return x, v
@@ -162,22 +163,17 @@ class SparsePeer:
 
 def product(A, y, upper: bool):
     """A y for the full symmetric matrix, given in full or (``upper``) as its upper triangle, without
-    building a second matrix (engine.linalg.upper_product: the engine's own PARDISO check)."""
-    from engine.linalg import upper_product
+    building a second matrix (engine.solvers.upper_product: the engine's own PARDISO check)."""
+    from engine.solvers import upper_product
     return upper_product(A, y) if upper else A @ y
-
-
-def _norm(a) -> float:
-    """|a| without BLAS (the engine's engine.linalg._norm: numpy's threaded dot product leaves an
-    OpenBLAS thread spinning on the second core)."""
-    return float(np.sqrt(np.square(a).sum()))
 
 
 def _pardiso_solver():
     """A pypardiso solver with the engine's PARDISO settings and thread count."""
     import pypardiso
 
-    from engine.linalg import PARDISO_IPARMS
+    from engine.solvers import PARDISO_IPARMS
+
     S = pypardiso.PyPardisoSolver(mtype=2)
     for i, val in PARDISO_IPARMS:
         S.set_iparm(i, val)

@@ -10,8 +10,8 @@ H_e,ab = d2W_e / dx_a dx_b.  An energy says so by setting ``stencil_size`` k and
 (an (max(m, 1), k) i32 ndarray, the first ``n_elements`` rows valid) and by giving a ti.func
 ``block(blocks, e, a, b)`` (a, b compile-time ints) that returns H_e,ab from the array its
 :meth:`hessian_blocks` returns, in whatever compact layout it stores.  That is all the sparse
-assembly (:mod:`engine.assembly`) needs.  ``products`` names the faster products an energy
-offers to the PCG solver (:mod:`engine.linalg`):
+assembly (:mod:`engine.solvers.assembly`) needs.  ``products`` names the faster products an energy
+offers to the PCG solver (:mod:`engine.solvers`):
 
 ``"blocks"``       :meth:`add_block_product` (out += H dx from the stored blocks, computed once
                    per linear solve).

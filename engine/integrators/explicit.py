@@ -1,13 +1,14 @@
-"""Explicit time integrators: forward Euler, symplectic Euler, velocity Verlet.
+"""Explicit time integrators: forward Euler, symplectic Euler, velocity Verlet, and the plans of
+their fast kernels.
 
-The update formulas (E1)-(E3) are written once, in :mod:`engine.integrators.kernels`. Each
-integrator has ``step(model, state, dt, n_steps=1)`` and ``begin``/``advance`` for
-Python-driven runs (:mod:`engine.integrators.loop`). Which kernels a step launches is decided by a
-planner from the model's energies (:func:`one_launch_plan`, :func:`many_steps_plan`): a springs
-[+ one hinge energy] model takes one launch per symplectic-Euler or velocity-Verlet step
-(:func:`cloth_plan` lays its arrays out for it), a small spring-only model run by the run loop
-many steps per launch; anything else the generic path (each energy's force kernels, then one
-update pass). Each fast path is pinned bitwise to the generic path by tests.
+The update formulas (E1)-(E3) are written once, in :mod:`engine.integrators.kernels`. An integrator
+here is the method only; :class:`engine.integrators.stepper.Stepper` decides once, from the model's
+energies, which kernels a step launches and keeps the plan and the work arrays: a springs [+ one
+hinge energy] model takes one launch per symplectic-Euler or velocity-Verlet step
+(:func:`cloth_stepper`, its arrays laid out by :func:`cloth_plan`), a small spring-only model run
+by the run loop many steps per launch (:func:`many_steps`); anything else the generic path (each
+energy's force kernels, then one update pass). Each fast path is pinned bitwise to the generic
+path by tests.
 
 The time-step limit is in :mod:`engine.stability`; blow-ups are reported by
 :class:`engine.integrators.monitor.Monitor`.
@@ -15,39 +16,21 @@ The time-step limit is in :mod:`engine.stability`; blow-ups are reported by
 from __future__ import annotations
 
 import math
-import weakref
 
 import numpy as np
-import taichi as ti
 
-from engine.constants import MANY_STEPS_BELOW
-from engine.fields import int_ndarray, scalar_ndarray, scratch_vec3, vec3_ndarray, zero_vec3
+from engine.constants import EXPLICIT
+from engine.fields import WorkArrays, int_ndarray, scalar_ndarray, vec3_ndarray, zero_vec3
 from engine.integrators import kernels as K
 from engine.integrators.monitor import Monitor
 from engine.model import Model, State
 
 
 # --------------------------------------------------------------------------------------------
-# The planner (its plans and work arrays are kept here, not on the model)
+# Plans (a Stepper, engine.integrators.stepper, makes them once and keeps them with its work arrays)
 # --------------------------------------------------------------------------------------------
 
-_work: "weakref.WeakKeyDictionary[Model, dict]" = weakref.WeakKeyDictionary()
-
-
-_plans: "weakref.WeakKeyDictionary[Model, dict]" = weakref.WeakKeyDictionary()
-
-
-def _plan(model: Model, what: str, build):
-    # keyed by the energies and their coefficient arrays (SpringEnergy.set_coefficients replaces c_np)
-    key = tuple((id(e), id(getattr(e, "c_np", None))) for e in model.energies)
-    d = _plans.setdefault(model, {})
-    cached = d.get(what)
-    if cached is None or cached[0] != key:
-        cached = d[what] = (key, build(model))
-    return cached[1]
-
-
-def _signature(model: Model) -> tuple:
+def signature(model: Model) -> tuple:
     """The model's energies as the forms the fast kernels know (each energy's ``force_form``, non-empty
     ones only): ("springs",) for one pair-gather energy, ("springs", "hinges") for one pair-gather
     energy followed by one slot-gather energy, () for anything else."""
@@ -159,15 +142,21 @@ def cloth_plan(model: Model, n_blocks: int):
     return int_ndarray(I), scalar_ndarray(np.concatenate(fparts)), int(bnd.sum())
 
 
-def _build_cloth_step(model: Model):
-    return cloth_stepper(model, cloth_blocks(model.n))
+def cloth_stepper(model: Model, n_blocks: int | None = None, work: dict | None = None):
+    """``step(state, dt, method="symplectic-euler", n_steps=1)``: ``n_steps`` steps of ``method``, one
+    launch of :func:`engine.integrators.kernels.cloth_step` each, or all in one launch of
+    :func:`engine.integrators.kernels.cloth_steps` when every block has a thread; None when the
+    model's energies are not springs [+ one hinge energy] in that order (or their incidence has no
+    block order: :func:`cloth_plan`). Methods: "symplectic-euler", "velocity-verlet" (kick-drift,
+    then force-kick; the acceleration is carried in the work array) and "velocity-verlet-begin"
+    (that acceleration for the current state, dt = 0). ``state.t`` is the caller's to advance.
 
-
-def cloth_stepper(model: Model, n_blocks: int):
-    """A new ``step(state, dt, method)`` (see :func:`one_launch_plan`) over ``n_blocks`` vertex blocks,
-    or None when the model has no cloth plan; :func:`one_launch_plan` keeps the one for this
-    machine's thread count."""
-    sig = _signature(model)
+    ``n_blocks``: vertex blocks (default :func:`cloth_blocks`, one per thread); ``work``: the dict
+    that keeps the kernel's work arrays (a Stepper's, so that the Verlet acceleration in them
+    outlives a plan made again; default a new one)."""
+    if n_blocks is None:
+        n_blocks = cloth_blocks(model.n)
+    sig = signature(model)
     if not sig:
         return None
     plan = cloth_plan(model, n_blocks)
@@ -175,7 +164,7 @@ def cloth_stepper(model: Model, n_blocks: int):
         return None
     I, F, n_boundary = plan
     n = model.n
-    d = _work.setdefault(model, {})
+    d = {} if work is None else work
     w = d.get("cloth_w")
     if w is None:  # per model, not per plan: the Verlet acceleration in it outlives a rebuilt plan
         w = d["cloth_w"] = vec3_ndarray(4 * n)  # spring sums, hinge sums, boundary x, Verlet acceleration
@@ -185,7 +174,7 @@ def cloth_stepper(model: Model, n_blocks: int):
     with_h = sig == ("springs", "hinges")
     launch = {what: K.BoundKernel(K.cloth_step, (w, I, F), (what, with_h, n_boundary > 0))
               for what in (K.CLOTH_SE, K.CLOTH_VV, K.CLOTH_VV_BEGIN)}
-    codes = {"symplectic-euler": K.CLOTH_SE, "velocity-verlet": K.CLOTH_VV, "velocity-verlet-begin": K.CLOTH_VV_BEGIN}
+    codes = CLOTH_METHODS
     # many steps per launch with a thread per block and a core per thread (cloth_steps' threads
     # spin while they wait for each other: on a shared core that would cost a time slice)
     nb = int(I.to_numpy()[K.H_NB])
@@ -213,6 +202,7 @@ def cloth_stepper(model: Model, n_blocks: int):
     return step
 
 
+CLOTH_METHODS = {"symplectic-euler": K.CLOTH_SE, "velocity-verlet": K.CLOTH_VV, "velocity-verlet-begin": K.CLOTH_VV_BEGIN}
 MULTI_STEP_CHUNK = 1 << 20  # steps per cloth_steps launch at most (its barrier counter stays far below 2^31)
 
 
@@ -230,38 +220,14 @@ def _cores() -> int:
         return os.cpu_count() or 1
 
 
-def one_launch_plan(model: Model):
-    """``step(state, dt, method="symplectic-euler", n_steps=1)``: ``n_steps`` steps of ``method``, one
-    launch of :func:`engine.integrators.kernels.cloth_step` each, or all in one launch of
-    :func:`engine.integrators.kernels.cloth_steps` when every block has a thread; None when the
-    model's energies are not springs [+ one hinge energy] in that order. Methods:
-    "symplectic-euler", "velocity-verlet" (kick-drift, then force-kick; the acceleration is carried
-    in the model's work array) and "velocity-verlet-begin" (that acceleration for the current
-    state, dt = 0). ``state.t`` is the caller's to advance."""
-    return _plan(model, "one_launch", _build_cloth_step)
-
-
-def _build_many_steps(model: Model):
-    if _signature(model) != ("springs",) or model.n >= MANY_STEPS_BELOW:
-        return None
-    s = model.energies[0]
-
-    def steps(state, dt, n_steps, method, monitor: Monitor, step_offset: int):
-        return _many_steps(model, s, state, dt, n_steps, method, monitor, step_offset)
-    return steps
-
-
-def many_steps_plan(model: Model, integrator):
-    """``run(state, dt, n_steps, monitor, step_offset) -> (kinetic, potential)`` doing all steps of ``integrator`` in
-    one launch, or None when the model is not a small spring-only model or the integrator is not explicit."""
-    name = getattr(integrator, "name", integrator)
-    fn = _plan(model, "many_steps", _build_many_steps) if name in K.EXPLICIT else None
-    if fn is None:
-        return None
-    return lambda state, dt, n_steps, monitor, step_offset: fn(state, dt, n_steps, name, monitor, step_offset)
-
-
-def _many_steps(model, springs, state, dt, n_steps, method, monitor, step_offset=0):
+def many_steps(model: Model, state: State, dt: float, n_steps: int, method: str, monitor: Monitor, work,
+               step_offset: int = 0):
+    """``n_steps`` steps of ``method`` of a spring-only model in one launch of
+    :func:`engine.integrators.kernels.many_steps`, with ``work``'s arrays (an
+    :class:`engine.fields.WorkArrays`); returns (kinetic, potential) after every step (J), and
+    raises the monitor's BlowUpError at the first step whose energy is not finite or above its
+    bound (see :func:`run_many_steps`)."""
+    springs = model.energies[0]
     dt = float(dt)
     if not (math.isfinite(dt) and dt > 0):
         raise ValueError(f"dt must be > 0 and finite (got {dt!r})")
@@ -273,7 +239,7 @@ def _many_steps(model, springs, state, dt, n_steps, method, monitor, step_offset
     if n_steps == 0:
         return np.zeros(0), np.zeros(0)
     kin, pot = K.energy_buffers(n_steps)
-    done = K.many_steps(state.x, state.v, scratch_vec3(model, "explicit_f"), scratch_vec3(model, "explicit_a"),
+    done = K.many_steps(state.x, state.v, work.vec3("f"), work.vec3("a"),
                         *springs.force_args(), springs.edges, springs.L, springs.c, springs.m, model.mass_nd,
                         model.inv_mass_nd, model.gravity_vec, dt, n_steps, kin, pot, monitor.bound, K.METHODS[method])
     return K.collect(kin, pot, done, n_steps, state, dt, monitor, step_offset)
@@ -288,13 +254,13 @@ def run_many_steps(model: Model, state: State, dt: float, n_steps: int, method: 
     If the total energy after a step is not finite or exceeds ``energy_bound`` (J), the run stops
     there and the monitor's BlowUpError is raised with ``step`` = ``step_offset`` + the index of
     that step and the energies up to and including it in ``.kinetic``/``.potential``."""
-    if method not in K.EXPLICIT:
-        raise ValueError(f"unknown method {method!r}; valid: {', '.join(K.EXPLICIT)}")
-    if _signature(model) != ("springs",):
+    if method not in EXPLICIT:
+        raise ValueError(f"unknown method {method!r}; valid: {', '.join(EXPLICIT)}")
+    if signature(model) != ("springs",):
         raise ValueError(f"run_many_steps needs a spring-only model (exactly one spring energy, plus gravity and "
                          f"pins); this model has energies {[e.name for e in model.energies]}")
     monitor = Monitor(method, dt, energy_bound, model=model)
-    return _many_steps(model, model.energies[0], state, dt, n_steps, method, monitor, step_offset)
+    return many_steps(model, state, dt, n_steps, method, monitor, WorkArrays(model.n), step_offset)
 
 
 # --------------------------------------------------------------------------------------------
@@ -302,28 +268,27 @@ def run_many_steps(model: Model, state: State, dt: float, n_steps: int, method: 
 # --------------------------------------------------------------------------------------------
 
 class ExplicitIntegrator:
-    """Base: ``step(model, state, dt, n_steps)`` = ``begin`` once, then ``advance`` n_steps times
-    (energies and blow-ups are watched by the run loop, engine.integrators.loop). Work arrays are allocated once per model (here, not on the model), so stepping allocates nothing."""
+    """Base: the update formula of one explicit method, with no state of its own. A
+    :class:`engine.integrators.stepper.Stepper` drives it: ``begin(stepper, state)`` once, then
+    ``advance(stepper, state, dt)`` per step, with the stepper's model, work arrays and plan
+    (``stepper.cloth``: the one-launch step, or None for the generic path). Energies and blow-ups
+    are watched by the run loop (engine.integrators.loop)."""
 
     name = "explicit"
     implicit = False
+    fused = False  # whether a Stepper may plan the one-launch cloth step for it
 
-    def begin(self, model: Model, state: State) -> None:
-        """Prepare caches that depend on the current state (nothing for one-stage methods)."""
+    def begin(self, stepper, state: State) -> None:
+        """Prepare what depends on the current state (nothing for one-stage methods)."""
 
-    def advance(self, model: Model, state: State, dt: float) -> None:
+    def advance(self, stepper, state: State, dt: float) -> None:
         raise NotImplementedError
 
-    def step(self, model: Model, state: State, dt: float, n_steps: int = 1) -> None:
-        dt = float(dt)
-        self.begin(model, state)
-        for _ in range(int(n_steps)):
-            self.advance(model, state, dt)
-
-    def _elastic_forces(self, model: Model, state: State):
-        f = scratch_vec3(model, "explicit_f")
+    @staticmethod
+    def _elastic_forces(stepper, state: State):
+        f = stepper.work.vec3("f")
         zero_vec3(f)
-        model.add_elastic_forces(state.x, f)
+        stepper.model.add_elastic_forces(state.x, f)
         return f
 
     def __repr__(self) -> str:
@@ -333,111 +298,64 @@ class ExplicitIntegrator:
 class ForwardEuler(ExplicitIntegrator):
     name = "forward-euler"
 
-    def advance(self, model, state, dt):
-        f = self._elastic_forces(model, state)
+    def advance(self, stepper, state, dt):
+        model = stepper.model
+        f = self._elastic_forces(stepper, state)
         K.update_kernel(state.x, state.v, f, f, model.inv_mass_nd, model.gravity_vec, dt, K.FORWARD_EULER, K.STEP)
         state.t += dt
 
 
 class SymplecticEuler(ExplicitIntegrator):
     """``fused`` (default): springs [+ one hinge energy] models take one kernel launch per step
-    (:func:`one_launch_plan`, bitwise the same result); others the generic path."""
+    (the stepper's cloth plan, bitwise the same result); others the generic path."""
 
     name = "symplectic-euler"
 
     def __init__(self, fused: bool = True):
         self.fused = bool(fused)
 
-    def advance(self, model, state, dt):
-        if self.fused:
-            one_launch = one_launch_plan(model)
-            if one_launch is not None:
-                one_launch(state, dt, self.name)
-                state.t += dt
-                return
-        f = self._elastic_forces(model, state)
+    def advance(self, stepper, state, dt):
+        if stepper.cloth is not None:
+            stepper.cloth(state, dt, self.name)
+            state.t += dt
+            return
+        model = stepper.model
+        f = self._elastic_forces(stepper, state)
         K.update_kernel(state.x, state.v, f, f, model.inv_mass_nd, model.gravity_vec, dt, K.SYMPLECTIC_EULER,
                         K.STEP)
         state.t += dt
 
-    def step(self, model, state, dt, n_steps=1):
-        _fused_steps(self, model, state, dt, n_steps)
-
 
 class VelocityVerlet(ExplicitIntegrator):
     """Kick-drift-kick.  The acceleration a(x) is computed in :meth:`begin` (one extra force
-    evaluation per ``step`` call, not per step) and then carried from step to step. ``fused``
-    (default): springs [+ one hinge energy] models take one kernel launch per step
-    (:func:`one_launch_plan`, bitwise the same result); others the generic path."""
+    evaluation per run, not per step) and then carried from step to step in the stepper's work
+    arrays. ``fused`` (default): springs [+ one hinge energy] models take one kernel launch per step
+    (the stepper's cloth plan, bitwise the same result); others the generic path."""
 
     name = "velocity-verlet"
 
     def __init__(self, fused: bool = True):
         self.fused = bool(fused)
 
-    def begin(self, model, state):
-        if self.fused:
-            one_launch = one_launch_plan(model)
-            if one_launch is not None:
-                one_launch(state, 0.0, "velocity-verlet-begin")
-                return
-        f = self._elastic_forces(model, state)
-        K.update_kernel(state.x, state.v, f, scratch_vec3(model, "explicit_a"), model.inv_mass_nd, model.gravity_vec, 0.0,
+    def begin(self, stepper, state):
+        if stepper.cloth is not None:
+            stepper.cloth(state, 0.0, "velocity-verlet-begin")
+            return
+        model = stepper.model
+        f = self._elastic_forces(stepper, state)
+        K.update_kernel(state.x, state.v, f, stepper.work.vec3("a"), model.inv_mass_nd, model.gravity_vec, 0.0,
                         K.VELOCITY_VERLET, K.ACCEL_KICK)
 
-    def advance(self, model, state, dt):
-        if self.fused:
-            one_launch = one_launch_plan(model)
-            if one_launch is not None:
-                one_launch(state, dt, self.name)
-                state.t += dt
-                return
-        a = scratch_vec3(model, "explicit_a")
+    def advance(self, stepper, state, dt):
+        if stepper.cloth is not None:
+            stepper.cloth(state, dt, self.name)
+            state.t += dt
+            return
+        model = stepper.model
+        a = stepper.work.vec3("a")
         K.update_kernel(state.x, state.v, a, a, model.inv_mass_nd, model.gravity_vec, dt, K.VELOCITY_VERLET,
                         K.KICK_DRIFT)
-        f = self._elastic_forces(model, state)
+        f = self._elastic_forces(stepper, state)
         K.update_kernel(state.x, state.v, f, a, model.inv_mass_nd, model.gravity_vec, 0.5 * dt, K.VELOCITY_VERLET,
                         K.ACCEL_KICK)
         state.t += dt
-
-    def step(self, model, state, dt, n_steps=1):
-        _fused_steps(self, model, state, dt, n_steps)
-
-
-def _fused_steps(integ, model, state, dt, n_steps):
-    """``integ.step`` for the fused integrators: ``begin``, then all ``n_steps`` steps in one call of the
-    cloth plan (one launch when it can) or, without a plan, ``advance`` per step; ``state.t``
-    advances step by step either way (the same float sums)."""
-    dt = float(dt)
-    n_steps = int(n_steps)
-    one_launch = one_launch_plan(model) if integ.fused else None
-    if one_launch is None:
-        ExplicitIntegrator.step(integ, model, state, dt, n_steps)
-        return
-    integ.begin(model, state)
-    if n_steps > 0:
-        one_launch(state, dt, integ.name, n_steps)
-        for _ in range(n_steps):
-            state.t += dt
-
-
-def run(model: Model, state: State, dt: float, n_steps: int, integrator="symplectic-euler",
-        energy_bound: float | None = None, check_every: int = 1) -> np.ndarray:
-    """Advance ``n_steps`` steps, computing the total energy after every ``check_every``-th step
-    (and after the last).  Raises the monitor's BlowUpError at the first check where the energy is
-    not finite or exceeds ``energy_bound`` (J).  ``check_every=0`` disables checks.
-
-    Returns the total energies at the checks (numpy, one per check)."""
-    from engine.integrators import get
-    from engine.integrators.loop import model_stepper, run as run_loop
-
-    integ = get(integrator) if isinstance(integrator, str) else integrator
-    dt = float(dt)
-    n_steps = int(n_steps)
-    if check_every <= 0:
-        integ.step(model, state, dt, n_steps)
-        return np.zeros(0)
-    monitor = Monitor(integ.name, dt, energy_bound, model=model)
-    advance = model_stepper(model, state, dt, integ, monitor, n_steps, energy_every=int(check_every))
-    _, kin, pot = run_loop(advance, n_steps, max(n_steps, 1))
-    return kin + pot

@@ -36,8 +36,8 @@ decreases Phi measurably (round-off level, next to the minimum) the iteration st
 
 Newton stops when |grad Phi(x)| <= newton_tol max(|grad Phi(x_n)|, |M g|) (the weight keeps a
 settled hanging body from chasing round-off).  Linear solves go through
-:mod:`engine.linalg` ("pcg", "cholesky", "pardiso" or "direct", relative tolerance ``tol``); a linear solve that
-does not reach ``tol`` raises :class:`engine.linalg.SolverError` and leaves the state as
+:mod:`engine.solvers` ("pcg", "cholesky", "pardiso" or "direct", relative tolerance ``tol``); a linear solve that
+does not reach ``tol`` raises :class:`engine.solvers.SolverError` and leaves the state as
 it was before the step.  Finally v+ = (x+ - x_n)/dt; pinned vertices keep x and get v = 0.
 
 Energy behaviour: for a linear problem every mode's energy is multiplied
@@ -52,9 +52,9 @@ from dataclasses import dataclass, field
 import taichi as ti
 
 from engine.errors import ParameterError
-from engine.linalg import SOLVERS, LinearSolver, SolverError, make_solver
-from engine.fields import scratch_vec3, axpy_into, copy_vec3, dot_vec3, scalar_array, sub_into, vec3_array, zero_vec3
-from engine.model import Model, State
+from engine.solvers import SOLVERS, LinearSolver, SolverError, make_solver
+from engine.fields import axpy_into, copy_vec3, dot_vec3, scalar_array, sub_into, vec3_array, zero_vec3
+from engine.model import State
 
 ARMIJO_C1 = 1e-4
 MAX_BACKTRACKS = 30
@@ -142,8 +142,8 @@ class BackwardEuler:
 
     Parameters
       solver            "pcg" | "cholesky" | "pardiso" | "direct" (or a LinearSolver instance;
-                        engine.linalg: "direct" is pardiso when MKL is installed, else cholesky)
-      tol               relative residual of each linear solve (engine.linalg (L3))
+                        engine.solvers: "direct" is pardiso when MKL is installed, else cholesky)
+      tol               relative residual of each linear solve (engine.solvers (L3))
       newton_iterations Newton iterations per step (1 = Baraff & Witkin's linearised step)
       newton_tol        stop when |grad Phi| <= newton_tol max(|grad Phi(x_n)|, |M g|)
       line_search       backtracking Armijo line search on Phi (monotone decrease)
@@ -152,7 +152,7 @@ class BackwardEuler:
       max_iter          CG iteration limit of each linear solve (pcg)
       exact_near_solution  with newton_iterations > 1, try the exact Hessian near the solution
 
-    ``step(model, state, dt, n_steps=1)``; ``advance(model, state, dt)`` is one step.
+    ``advance(stepper, state, dt)`` is one step (a :class:`engine.integrators.stepper.Stepper` drives it).
     After a step: ``last_info`` (:class:`StepInfo`), ``last_objectives`` (Phi values);
     totals since :meth:`reset_stats`: ``total_steps``, ``total_solves``, ``total_linear_iterations``.
     """
@@ -201,13 +201,8 @@ class BackwardEuler:
         self.total_solves = 0
         self.total_linear_iterations = 0
 
-    def begin(self, model: Model, state: State) -> None:
+    def begin(self, stepper, state: State) -> None:
         """Nothing to prepare (kept for the integrator protocol)."""
-
-    def step(self, model: Model, state: State, dt: float, n_steps: int = 1) -> None:
-        dt = float(dt)
-        for _ in range(int(n_steps)):
-            self.advance(model, state, dt)
 
     # -- one step ------------------------------------------------------------------------------
     def _objective(self, model, x, xn, v, dt, W_n, work) -> float:
@@ -223,11 +218,14 @@ class BackwardEuler:
             phi += 0.5 * self.rayleigh_beta / dt * dot_vec3(d, hq)
         return phi
 
-    def advance(self, model: Model, state: State, dt: float) -> None:
+    def advance(self, stepper, state: State, dt: float) -> None:
+        """One step of ``stepper.model`` with the stepper's work arrays; this integrator's linear
+        solver solves with the stepper's set-up (pattern, analysis) for that model."""
         dt = float(dt)
         if not (math.isfinite(dt) and dt > 0.0):
             raise ParameterError(f"dt must be finite and > 0 (got {dt!r})")
-        work = {k: scratch_vec3(model, "be_" + k) for k in ("xn", "f", "rhs", "dx", "trial", "d", "hq")}
+        model, solver = stepper.model, stepper.solver
+        work = {k: stepper.work.vec3("be_" + k) for k in ("xn", "f", "rhs", "dx", "trial", "d", "hq")}
         x, v = state.x, state.v
         xn, f, rhs, dx, trial = work["xn"], work["f"], work["rhs"], work["dx"], work["trial"]
         inv_mass = model.inv_mass_nd
@@ -272,10 +270,12 @@ class BackwardEuler:
             use_exact = (self.exact_near_solution and self.newton_iterations > 1 and exact_ok
                          and gnorm < EXACT_BELOW * g0)
             if k == 0 or self.rayleigh_beta == 0.0:   # x = x_n: the damping Hessian is H(x)
-                lin = self.solver.solve(model, x, rhs, dx, mass_coef, hess_coef, psd=not use_exact)
+                with solver.using(stepper.solver_setup):
+                    lin = solver.solve(model, x, rhs, dx, mass_coef, hess_coef, psd=not use_exact)
             else:                                      # H(x) + (beta/dt) H_n
-                lin = self.solver.solve(model, x, rhs, dx, mass_coef, 1.0, psd=not use_exact,
-                                        extra=(self.rayleigh_beta / dt, xn))
+                with solver.using(stepper.solver_setup):
+                    lin = solver.solve(model, x, rhs, dx, mass_coef, 1.0, psd=not use_exact,
+                                       extra=(self.rayleigh_beta / dt, xn))
             self.total_solves += 1
             self.total_linear_iterations += lin.iterations
             slope = -dot_vec3(rhs, dx) if lin.converged else 0.0  # grad Phi . dx < 0: descent

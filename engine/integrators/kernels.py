@@ -36,6 +36,7 @@ Method codes: :data:`METHODS` is the one table of them.
 import numpy as np
 import taichi as ti
 
+from engine.constants import INTEGRATOR_NAMES
 from engine.energies.axial import axial_force, axial_potential
 from engine.energies.hinge import hinge_forces, hinge_frame
 from engine.energies.masses import add_gravity_potential, kinetic_energy
@@ -44,9 +45,7 @@ from engine.solvers.thomas import axial_backward_euler
 from engine.fields import edge_array, int_array, scalar_array, vec3_array
 
 FORWARD_EULER, SYMPLECTIC_EULER, VELOCITY_VERLET, BACKWARD_EULER = 0, 1, 2, 3
-METHODS = {"forward-euler": FORWARD_EULER, "symplectic-euler": SYMPLECTIC_EULER,
-           "velocity-verlet": VELOCITY_VERLET, "backward-euler": BACKWARD_EULER}
-EXPLICIT = ("forward-euler", "symplectic-euler", "velocity-verlet")
+METHODS = dict(zip(INTEGRATOR_NAMES, (FORWARD_EULER, SYMPLECTIC_EULER, VELOCITY_VERLET, BACKWARD_EULER)))
 
 # phases of update(): which part of a step a loop performs
 STEP = 0        # the whole per-vertex update of (E1) or (E2) (forces of the old state in f)

@@ -1,76 +1,23 @@
-"""The one run loop: advance a state in chunks, watch its energy, hand energies and frames out.
+"""The one run loop: advance a state in chunks and hand each chunk's energies out as it comes.
 
-:func:`run` drives any ``advance(chunk, done) -> (steps, kinetic, potential)``; :func:`model_stepper`
-makes one for a :class:`engine.model.Model` and an integrator, choosing the fastest path the model's
-energies allow (:func:`engine.integrators.explicit.many_steps_plan`: many steps per kernel launch for
-small spring-only models), and the rod scene has its own many-steps kernel with the same contract.
-Energies are sampled after every ``energy_every``-th step (and the last); a sample that is not
-finite or above the monitor's bound stops the run at that step with the monitor's
-:class:`engine.errors.BlowUpError`, which carries the energies up to the bad step.
+:func:`chunks` drives any ``advance(chunk, done) -> (steps, kinetic, potential)`` (a
+:meth:`engine.integrators.stepper.Stepper.advancer`, or a scene's own) and yields one
+:class:`Chunk` after every chunk: the caller measures, draws and records from it; nothing in
+here calls back up. Energies are sampled by ``advance`` (every step, or every k-th); a sample
+that is not finite or above the monitor's bound makes ``advance`` raise the monitor's
+:class:`engine.errors.BlowUpError` at that step, which ends the run with a last chunk that
+carries it (and the energies up to the bad step). :func:`run` collects a whole run.
 """
 from __future__ import annotations
 
 import shutil
 import sys
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
-from engine import diagnostics
 from engine.errors import BlowUpError
-from engine.integrators.monitor import Monitor
-
-
-def model_stepper(model, state, dt: float, integrator, monitor: Monitor, n_total: int, energy_every: int = 1,
-                  substeps: int = 1, check_interrupt=None):
-    """``advance(chunk, done)`` for ``integrator`` on ``model``: ``chunk`` steps of size dt (each made of
-    ``substeps`` steps of dt/substeps), energies after every ``energy_every``-th step and after step
-    ``n_total``; a linear-solver failure of an implicit step is reported as the monitor's blow-up."""
-    from engine.integrators.explicit import many_steps_plan
-    from engine.linalg import SolverError
-
-    h = dt / substeps
-    many = None
-    if energy_every == 1 and substeps == 1:
-        many = many_steps_plan(model, integrator)
-    if many is not None:
-        def advance(chunk, done):
-            if check_interrupt is not None:
-                check_interrupt()
-            K, W = many(state, dt, chunk, monitor, done)
-            return np.arange(done + 1, done + chunk + 1), K, W
-        return advance
-
-    begun = []
-
-    def advance(chunk, done):
-        if not begun:
-            begun.append(True)
-            integrator.begin(model, state)
-        steps, kin, pot = [], [], []
-        for s in range(done + 1, done + chunk + 1):
-            if check_interrupt is not None:
-                check_interrupt()
-            try:
-                for _ in range(substeps):
-                    integrator.advance(model, state, h)
-            except SolverError as err:  # the integrator left the state at the last good step
-                E = diagnostics.total_energy(model, state)
-                exc = monitor.solver_failure(s - 1, state.t, E, err)
-                exc.steps, exc.kinetic, exc.potential = np.asarray(steps), np.asarray(kin), np.asarray(pot)
-                raise exc from None
-            if s % energy_every == 0 or s == n_total:
-                K = diagnostics.kinetic_energy(model, state)
-                W = model.potential_energy(state.x)
-                steps.append(s)
-                kin.append(K)
-                pot.append(W)
-                if monitor.exceeded(K + W):
-                    exc = monitor.blow_up(s - 1, state.t, K + W)
-                    exc.steps, exc.kinetic, exc.potential = np.asarray(steps), np.asarray(kin), np.asarray(pot)
-                    raise exc
-        return np.asarray(steps, dtype=np.int64), np.asarray(kin), np.asarray(pot)
-    return advance
 
 
 PROGRESS_AFTER_S = 0.5    # a bar is considered once a run has taken this long ...
@@ -120,42 +67,46 @@ class Progress:
             self.bar = None
 
 
-def run(advance, n_steps: int, every: int, on_energies=None, on_frame=None, check_interrupt=None,
-        on_draw=None, draw_every: int | None = None, progress: str | None = None):
-    """Advance ``n_steps`` steps in chunks of ``every`` (the last may be shorter).
+@dataclass
+class Chunk:
+    """What one chunk of a run did. ``done``: steps done after it (0 for the first, empty chunk,
+    which stands for the initial state); ``steps``/``kinetic``/``potential``: its energy samples;
+    ``frame``: whether ``done`` is a multiple of ``every`` (or the last step), where a run measures
+    its state; ``error``: the BlowUpError that ended the run in this chunk (``done`` is then the bad
+    step, and the error carries the whole run's samples up to it), else None."""
+    done: int
+    steps: np.ndarray
+    kinetic: np.ndarray
+    potential: np.ndarray
+    frame: bool
+    error: BlowUpError | None = None
 
-    ``on_frame(step)`` is called at step 0 and after every chunk (to measure the state);
-    ``on_energies(steps, kinetic, potential)`` after every chunk with its energy samples. With
-    ``on_draw``, the chunks are ``draw_every`` steps (a divisor of ``every``) and ``on_draw(step)``
-    is called at step 0 and after each of them (to draw the state more often than it is measured;
-    ``on_frame`` still comes at the same steps). On a blow-up the samples up to the bad step are
-    handed out, ``on_frame`` and ``on_draw(step, True)`` are called at the bad step (the True: the
-    state there must be drawn whatever the frame spacing), and the error is re-raised
-    with ``steps``/``kinetic``/``potential`` of the whole run so far. Returns (steps, kinetic,
-    potential) of the whole run.
 
-    ``progress``: the run's :class:`Progress` bar, or a label for one on stderr (None: no bar)."""
+def chunks(advance, n_steps: int, every: int, draw_every: int | None = None, check_interrupt=None,
+           progress: "Progress | str | None" = None):
+    """Yield a :class:`Chunk` for step 0, then one after each chunk of ``draw_every`` steps
+    (default ``every``; it must divide ``every``) until ``n_steps`` are done or a step blows up
+    (then the last chunk carries the error, and the generator ends: the caller re-raises it).
+    ``check_interrupt()`` is called before each chunk. ``progress``: the run's :class:`Progress`
+    bar, or a label for one on stderr (None: no bar); it is closed when the run ends (use
+    ``contextlib.closing`` where the caller may stop early, so that it is closed at once)."""
     bar = Progress(progress, n_steps) if isinstance(progress, str) else progress
     try:
-        return _run(advance, n_steps, every, on_energies, on_frame, check_interrupt, on_draw, draw_every, bar)
+        yield from _chunks(advance, int(n_steps), max(int(every), 1), draw_every, check_interrupt, bar)
     finally:
         if bar is not None:
             bar.close()
 
 
-def _run(advance, n_steps, every, on_energies, on_frame, check_interrupt, on_draw, draw_every, bar):
-    all_s, all_k, all_w = [], [], []
-    n_steps = int(n_steps)
-    every = max(int(every), 1)
+def _chunks(advance, n_steps, every, draw_every, check_interrupt, bar):
     chunk_len = every
-    if on_draw is not None and draw_every is not None:
+    if draw_every is not None:
         chunk_len = max(int(draw_every), 1)
         if every % chunk_len:
             raise ValueError(f"draw_every ({chunk_len}) must divide every ({every})")
-    if on_draw is not None:
-        on_draw(0)
-    if on_frame is not None:
-        on_frame(0)
+    empty = np.zeros(0)
+    yield Chunk(0, np.zeros(0, dtype=np.int64), empty, empty, True)
+    all_s, all_k, all_w = [], [], []
     done = 0
     while done < n_steps:
         if check_interrupt is not None:
@@ -169,28 +120,32 @@ def _run(advance, n_steps, every, on_energies, on_frame, check_interrupt, on_dra
             W = np.asarray(exc.potential if exc.potential is not None else [])
             if steps is None:
                 steps = np.arange(done + 1, done + 1 + len(K))
-            if on_energies is not None and len(K):
-                on_energies(np.asarray(steps), K, W)
-            if on_draw is not None:
-                on_draw(exc.step + 1, True)
-            if on_frame is not None:
-                on_frame(exc.step + 1)
-            exc.steps = np.concatenate(all_s + [np.asarray(steps, dtype=np.int64)])
+            steps = np.asarray(steps, dtype=np.int64)
+            exc.steps = np.concatenate(all_s + [steps])
             exc.kinetic = np.concatenate(all_k + [K])
             exc.potential = np.concatenate(all_w + [W])
-            raise
-        all_s.append(np.asarray(steps, dtype=np.int64))
-        all_k.append(np.asarray(K))
-        all_w.append(np.asarray(W))
-        if on_energies is not None and len(K):
-            on_energies(np.asarray(steps), np.asarray(K), np.asarray(W))
+            if bar is not None:
+                bar.close()  # cleared before anything reports the blow-up
+            yield Chunk(exc.step + 1, steps, K, W, True, exc)
+            return
+        steps, K, W = np.asarray(steps, dtype=np.int64), np.asarray(K), np.asarray(W)
+        all_s.append(steps)
+        all_k.append(K)
+        all_w.append(W)
         done += chunk
         if bar is not None:
             bar.update(done)
-        if on_draw is not None:
-            on_draw(done)
-        if on_frame is not None and (done % every == 0 or done == n_steps):
-            on_frame(done)
-    if not all_s:
-        return np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0)
+        yield Chunk(done, steps, K, W, done % every == 0 or done == n_steps)
+
+
+def run(advance, n_steps: int, every: int, check_interrupt=None, progress: "Progress | str | None" = None):
+    """The whole run of :func:`chunks`: (steps, kinetic, potential) of all its energy samples; a
+    blow-up is raised with the samples up to the bad step in ``steps``/``kinetic``/``potential``."""
+    all_s, all_k, all_w = [np.zeros(0, dtype=np.int64)], [np.zeros(0)], [np.zeros(0)]
+    for c in chunks(advance, n_steps, every, None, check_interrupt, progress):
+        if c.error is not None:
+            raise c.error
+        all_s.append(c.steps)
+        all_k.append(c.kinetic)
+        all_w.append(c.potential)
     return np.concatenate(all_s), np.concatenate(all_k), np.concatenate(all_w)

@@ -3,7 +3,7 @@ unconditional stability, what it costs in accuracy and what it buys in speed.
 
 The lecture notes remark that implicit methods pass information across the whole mesh in a
 single step, so the CFL limit does not bind them. Physics lives in the engine (:mod:`engine.integrators.explicit`,
-:mod:`engine.integrators.implicit`, :mod:`engine.linalg`, :mod:`engine.scenes`,
+:mod:`engine.integrators.implicit`, :mod:`engine.solvers`, :mod:`engine.scenes`,
 :mod:`engine.statics`); :mod:`.stages` builds the hanging cloth, runs it and measures, and
 ``narrative.md`` narrates each stage.
 """

@@ -68,8 +68,9 @@ class Watched:
     def __getattr__(self, name):  # name, implicit, solver, tol, begin, ... of the wrapped integrator
         return getattr(self.integrator, name)
 
-    def advance(self, model, state, dt):
-        self.integrator.advance(model, state, dt)
+    def advance(self, stepper, state, dt):
+        model = stepper.model
+        self.integrator.advance(stepper, state, dt)
         info = self.integrator.last_info
         self.residuals.append(max(info.linear_residuals, default=0.0))
         self.iterations.append(sum(info.linear_iterations))

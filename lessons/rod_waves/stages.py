@@ -16,12 +16,13 @@ import numpy as np
 from engine.analysis import fit_slope, geometric_growth, peak
 from engine.errors import BlowUpError
 from engine.integrators.loop import run as run_loop
+from engine.integrators.stepper import Stepper
 from engine.scenes import Rod
 
 from .._budget import ANNOUNCE_S, WORK_BUDGET_S, refuse_over_budget, time_text
 from .._framework import Experiment, check_interrupt
 from .._measure import central_gradient, expect, modal_tracks, observation_steps, rod_node_strain, track_peaks
-from .._scene import progress_bar, simulate_method
+from .._scene import progress_bar, simulate as scene_simulate
 from lessons.app.blueprint import RunView
 
 # ------------------------------------------------------------------ the parameters' limits
@@ -202,7 +203,7 @@ def simulate(ctx, name: str, rod: Rod, state, dt: float, n_steps: int, method: s
              energy_bound: float | None = None, observe=None, every: int | None = None, fixed: bool = False,
              label: str | None = None, energy: str = "split", interface: float | None = None):
     """Run ``n_steps`` of ``method`` (already chosen: see :func:`scene_method`) through the one
-    lesson runner (``lessons._scene.simulate_method``: one many-steps launch per chunk of ``every``
+    lesson runner (``lessons._scene.simulate``: the rod's many-steps kernel, one launch per chunk of ``every``
     steps), drawing the rod and calling ``observe(step, t, u)`` after each chunk (and at step 0).
     Returns (kinetic, potential) per step. A blow-up is drawn, marked in the recording and re-raised.
     The run's view is named ``label`` and seen from above (the rod along x, its displacement
@@ -221,9 +222,9 @@ def simulate(ctx, name: str, rod: Rod, state, dt: float, n_steps: int, method: s
                             colors=[[150, 150, 150]], radii=0.002)
 
     on_state = (lambda step, st: observe(step, step * dt, st.displacement(rod))) if observe else None
-    _, K, W = simulate_method(ctx, name, rod, state, dt, n_steps, method, every or ctx.cfg.record_every,
-                              energy_bound, observe=on_state, log=log, fixed=fixed, label=method_label(method),
-                              view=RunView(label=label or name, camera="top", energy=energy))
+    _, K, W = scene_simulate(ctx, name, rod, state, dt, n_steps, method, every or ctx.cfg.record_every,
+                             energy_bound, observe=on_state, log=log, fixed=fixed, chosen=True,
+                             label=method_label(method), view=RunView(label=label or name, camera="top", energy=energy))
     return K, W
 
 
@@ -438,14 +439,11 @@ def _survives(ctx, rod, nu, n_steps, name, quiet=True):
 
 
 def _quiet_run(ctx, name, rod, st, dt, n_steps, method, energy_bound):
-    """``rod.run`` through the one run loop (engine.integrators.loop.run), nothing recorded: launches of
-    at most QUIET_CHUNK node-steps, so a long run shows its progress bar and can be interrupted. The
-    rod's many-steps kernel is serial, so the chunks step exactly as one launch would."""
+    """The rod's stepper through the one run loop (engine.integrators.loop.run), nothing recorded:
+    launches of at most QUIET_CHUNK node-steps, so a long run shows its progress bar and can be
+    interrupted. The rod's many-steps kernel is serial, so the chunks step exactly as one launch would."""
     chunk = max(QUIET_CHUNK // rod.n, 1)
-
-    def advance(k, done):
-        K, W = rod.run(st, dt, k, method, energy_bound, step_offset=done)
-        return np.arange(done + 1, done + k + 1), K, W
+    advance = Stepper(rod, method).advancer(st, dt, n_steps, energy_bound)
     run_loop(advance, n_steps, chunk, check_interrupt=check_interrupt, progress=progress_bar(ctx, name, n_steps))
 
 

@@ -20,10 +20,10 @@ from engine import mesh as meshes
 from engine.analysis import convergence_order, fit_slope
 from engine.constants import G
 from engine.errors import BlowUpError, ParameterError
-from engine.integrators import get as get_integrator
+from engine.integrators import Stepper, get as get_integrator
 from engine.stability import stable_dt_estimate
 from engine.integrators.explicit import run_many_steps
-from engine.integrators.kernels import EXPLICIT
+from engine.constants import EXPLICIT
 from engine.fields import vec3_ndarray
 from engine.model import Model
 from engine.scenes import Rod
@@ -34,7 +34,7 @@ from .._budget import announce, refuse_over_budget
 from .._framework import Experiment
 from .._measure import (central_difference, central_gradient, edge_strain, expect, modal_tracks, observation_steps,
                         random_rotation, rod_node_strain, track_peaks)
-from .._scene import simulate as scene_simulate, simulate_method
+from .._scene import simulate as scene_simulate
 
 # ------------------------------------------------------------------ scenes and runs
 
@@ -68,10 +68,10 @@ def draw_springs(rec, model: Model, x: np.ndarray, scale: float | None = None, p
 def simulate_fused(ctx, name: str, model: Model, state, dt: float, n_steps: int, method: str,
                    every: int, energy_bound: float | None = None, observe=None, log=None, fixed: bool = False,
                    view: RunView | None = None):
-    """A run of the many-steps kernel through the one lesson runner (``lessons._scene.simulate_method``),
-    shown as ``view``. Returns (kinetic, potential) per step."""
-    _, K, W = simulate_method(ctx, name, model, state, dt, n_steps, method, every, energy_bound, observe=observe,
-                              log=log, fixed=fixed, view=view)
+    """A run of the many-steps kernel (``method`` already chosen) through the one lesson runner
+    (``lessons._scene.simulate``), shown as ``view``. Returns (kinetic, potential) per step."""
+    _, K, W = scene_simulate(ctx, name, model, state, dt, n_steps, method, every, energy_bound, observe=observe,
+                             log=log, fixed=fixed, view=view, chosen=True)
     return K, W
 
 
@@ -324,7 +324,7 @@ def _fused_matches_stepwise(ctx):
     for method in ("symplectic-euler", "velocity-verlet", "forward-euler"):
         a, b = model.make_state(x0, v0), model.make_state(x0, v0)
         K, W = run_many_steps(model, a, dt, 100, method)
-        get_integrator(method).step(model, b, dt, 100)
+        Stepper(model, get_integrator(method)).step(b, dt, 100)
         ctx.note_integrator(f"fused_vs_stepwise_{method}", method, fixed=True)
         xa, xb = a.numpy().x, b.numpy().x
         E_ref = diagnostics.total_energy(model, b)

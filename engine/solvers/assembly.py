@@ -1,8 +1,8 @@
-"""Sparse assembly of the implicit system matrix for the direct solver (engine.linalg "cholesky").
+"""Sparse assembly of the implicit system matrix for the direct solver (engine.solvers "cholesky").
 
-The matrix is A' = a M + sum_terms scale H(x) (engine.linalg (L1) divided by c), written as
+The matrix is A' = a M + sum_terms scale H(x) (engine.solvers (L1) divided by c), written as
 triplets into a ``ti.linalg.SparseMatrixBuilder`` (duplicates are summed), with the rows and
-columns of pinned vertices replaced by the identity (engine.linalg (L2)).  Only the LOWER
+columns of pinned vertices replaced by the identity (engine.solvers (L2)).  Only the LOWER
 triangle is written (row >= col): Eigen's LL^T reads nothing else, and it halves the triplets.
 
 Every energy is assembled by the same template.  An energy that is a sum over elements of
@@ -100,7 +100,7 @@ def triplet_capacity(model) -> int:
 
 
 # --------------------------------------------------------------------------------------------
-# Fixed-pattern assembly into CSR values (the PARDISO direct solver, engine.linalg "pardiso")
+# Fixed-pattern assembly into CSR values (the PARDISO direct solver, engine.solvers "pardiso")
 # --------------------------------------------------------------------------------------------
 #
 # The pattern of A' depends only on the model's elements and pins, so it is computed once per
@@ -112,7 +112,7 @@ def triplet_capacity(model) -> int:
 #              j > i of vertex i (increasing j) the three entries (3i+r, 3j+s), s = 0, 1, 2   (P1)
 #
 # A pinned vertex keeps only its diagonal block (the identity); pairs with a pinned vertex are
-# not stored (its rows and columns are eliminated, (L2) of engine.linalg).
+# not stored (its rows and columns are eliminated, (L2) of engine.solvers).
 #
 # The values are written by a gather per vertex (a parallel loop over block rows; vertex i's
 # thread alone writes rows 3i..3i+2, no atomics): for every element e incident to i, at slot a,

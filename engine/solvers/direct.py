@@ -1,0 +1,304 @@
+"""``cholesky`` and ``pardiso``: sparse direct LL^T of the assembled system (L1)-(L2), with the
+residual check (L3) and iterative refinement they share (:class:`DirectSolver`); what each does
+is described in :mod:`engine.solvers`."""
+import math
+import time
+
+import numpy as np
+import taichi as ti
+
+from engine.fields import float_dtype, vec3_ndarray, zero_vec3
+from engine.model import Model
+from engine.solvers.assembly import (CSRPattern, assemble_energy, assemble_mass, assemble_rows, init_rows,
+                                     triplet_capacity)
+from engine.solvers.operator import LinearSolver, LinearSolveInfo, _apply_plan, _hessian_plan, _scaled
+
+
+def upper_product(U, y: np.ndarray, diag: np.ndarray | None = None) -> np.ndarray:
+    """A y for the symmetric A stored as its upper triangle U (scipy CSR), without building A:
+    U y + U^T y - diag(U) y.  ``diag``: U's diagonal when already at hand."""
+    return U @ y + U.T @ y - (U.diagonal() if diag is None else diag) * y
+
+
+def norm(a: np.ndarray) -> float:
+    """|a| without BLAS: numpy's threaded ddot leaves an OpenBLAS thread spinning on the second
+    core for ~0.1 s (unless OPENBLAS_THREAD_TIMEOUT was set before numpy loaded, see
+    engine/__init__.py), which slowed the factorisation that follows by ~1.7x."""
+    return math.sqrt(float(np.square(a).sum()))
+
+
+class DirectSolver(LinearSolver):
+    """A sparse direct solve of (L1)-(L2), shared by the backends: assemble A' = A/c, factorise,
+    back-substitute, then check the residual (L3) with the matrix-free product and take up to
+    ``refinements`` steps of iterative refinement while it is above the tolerance.  A subclass
+    gives ``_factorize(model, entry, x, a', psd, extra) -> bool`` (False: A' is not positive
+    definite) and ``_backsolve(entry, rhs) -> solution`` (numpy, 3n).  ``last_timings`` holds the
+    last solve's seconds: assembly, factorization, solve (back-substitutions and refinement)."""
+
+    def __init__(self, tol: float = 1e-8, max_iter: int = 1000, refinements: int = 2):
+        super().__init__(tol, max_iter)
+        self.refinements = int(refinements)
+        self.last_timings: dict = {}
+
+    def _setup(self, model: Model) -> dict:
+        entry = self._entry(model)
+        if "q" not in entry:
+            entry["q"] = vec3_ndarray(model.n)
+            entry["free_dofs"] = np.repeat(model.free, 3)
+        return entry
+
+    def _factorize(self, model: Model, entry: dict, x, a_s: float, psd: bool, extra) -> bool:
+        raise NotImplementedError
+
+    def _backsolve(self, entry: dict, rhs: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def _product(self, model: Model, entry: dict, x, a_s: float, psd: bool, extra):
+        """``product(sol, y) -> A' sol`` (numpy, 3n) for the residual check; ``y`` holds sol as a
+        vec3 ndarray.  Here the matrix-free operator (L1) in Taichi kernels."""
+        plan = _hessian_plan(model, x, psd, extra, work=entry["work"])
+        q = entry["q"]
+
+        def product(sol, y):
+            _apply_plan(model, plan, a_s, y, q)
+            return q.to_numpy().astype(np.float64).reshape(-1)
+        return product
+
+    def solve(self, model: Model, x, b, y, mass_coef: float, hess_coef: float = 1.0,
+              psd: bool = True, extra=None) -> LinearSolveInfo:
+        a, c = self._coefficients(mass_coef, hess_coef)
+        entry = self._setup(model)
+        t0 = time.perf_counter()
+        ok = self._factorize(model, entry, x, a / c, psd, _scaled(extra, c))
+        t1 = time.perf_counter()
+        self.last_timings = {"assembly": entry.pop("_assembly_s", 0.0), "factorization": t1 - t0, "solve": 0.0}
+        self.last_timings["factorization"] -= self.last_timings["assembly"]
+        if not ok:
+            zero_vec3(y)
+            return self._info(1, math.inf, f"{self.name} factorization failed (matrix not positive definite)")
+        free = entry["free_dofs"]
+        rhs = np.asarray(b.to_numpy(), dtype=np.float64).reshape(-1) / c
+        rhs[~free] = 0.0
+        bnorm = norm(rhs)
+        if bnorm == 0.0:
+            zero_vec3(y)
+            return self._info(0, 0.0)
+        sol = np.asarray(self._backsolve(entry, rhs), dtype=np.float64).reshape(-1)
+        y.from_numpy(sol.reshape(-1, 3).astype(float_dtype()))
+        product = self._product(model, entry, x, a / c, psd, _scaled(extra, c))
+        it = 1
+        while True:
+            res = rhs - product(sol, y)  # rhs - A' sol
+            res[~free] = 0.0
+            residual = norm(res) / bnorm
+            if residual <= self.tol or it > self.refinements or not np.isfinite(residual):
+                break
+            sol = sol + np.asarray(self._backsolve(entry, res), dtype=np.float64).reshape(-1)  # refinement
+            y.from_numpy(sol.reshape(-1, 3).astype(float_dtype()))
+            it += 1
+        self.last_timings["solve"] = time.perf_counter() - t1
+        return self._info(it, residual)
+
+
+class CholeskySolver(DirectSolver):
+    """Sparse LL^T (Eigen via ``ti.linalg.SparseSolver``), pattern analysed once per model."""
+
+    name = "cholesky"
+
+    def __init__(self, tol: float = 1e-8, max_iter: int = 1000, refinements: int = 2):
+        super().__init__(tol, max_iter, refinements)
+        self.last_assembly_triplets: int | None = None
+
+    def _setup(self, model: Model) -> dict:
+        entry = super()._setup(model)
+        if "builder" not in entry:
+            cap = triplet_capacity(model)
+            N = 3 * model.n
+            entry["capacity"] = cap
+            entry["builder"] = ti.linalg.SparseMatrixBuilder(N, N, max_num_triplets=cap, dtype=ti.f64)
+            entry["solver"] = ti.linalg.SparseSolver(dtype=ti.f64, solver_type="LLT")
+            entry["analyzed"] = False
+        return entry
+
+    def assemble(self, model: Model, x, mass_coef: float, hess_coef: float = 1.0, psd: bool = True,
+                 extra=None):
+        """The f64 SparseMatrix holding the LOWER TRIANGLE of the symmetric (L1)/c (plus
+        extra[0]/c H_psd(extra[1])), pinned rows/columns replaced by the identity.  Eigen's LL^T
+        reads only the lower triangle, so the upper one is not assembled (about half the
+        triplets and assembly time); do not multiply with it."""
+        entry = self._setup(model)
+        c = float(hess_coef)
+        a_s = float(mass_coef) / c
+        extra = _scaled(extra, c)
+        if extra is None:
+            B = entry["builder"]
+        else:  # the same pattern with every element block written twice
+            if "builder2" not in entry:
+                N = 3 * model.n
+                entry["builder2"] = ti.linalg.SparseMatrixBuilder(
+                    N, N, max_num_triplets=2 * entry["capacity"] - 3 * model.n, dtype=ti.f64)
+            B = entry["builder2"]
+        assemble_mass(B, model.mass_nd, model.inv_mass_nd, a_s)
+        terms = [(1.0, x, psd)] if extra is None else [(extra[0], extra[1], True), (1.0, x, psd)]
+        for scale, xx, ps in terms:
+            for e in model.energies:
+                if e.n_elements:
+                    assemble_energy(B, e, e.hessian_blocks(xx, ps), model.inv_mass_nd, scale)
+        return B.build()  # empties the builder; lower triangle of the symmetric A' only
+
+    def _factorize(self, model, entry, x, a_s, psd, extra) -> bool:
+        t0 = time.perf_counter()
+        A = self.assemble(model, x, a_s, 1.0, psd, extra)
+        entry["_assembly_s"] = time.perf_counter() - t0
+        S = entry["solver"]
+        if not entry["analyzed"]:
+            S.analyze_pattern(A)
+            entry["analyzed"] = True
+        S.factorize(A)
+        return bool(S.info())
+
+    def _backsolve(self, entry, rhs):
+        return entry["solver"].solve(rhs)
+
+
+# PARDISO's settings (1-based iparm, value): user iparms, METIS nested dissection, no iterative
+# refinement inside (the caller checks and refines), pivot perturbation 1e-8, no weighted matching,
+# the default factorisation kernel, no matrix check, CSR (not transposed)
+PARDISO_IPARMS = ((1, 1), (2, 2), (8, 0), (10, 8), (13, 0), (24, 0), (27, 0), (12, 0))
+
+
+class _Pardiso:
+    """One MKL PARDISO instance (through pypardiso's ctypes binding) for a fixed CSR pattern:
+    real symmetric positive definite (mtype 2), nested-dissection ordering; the symbolic
+    analysis (phase 11) once, the numeric factorisation (phase 22) per solve, back-substitution
+    (phase 33).  Frees its memory when dropped."""
+
+    def __init__(self, matrix, threads: int):
+        import ctypes
+        _quiet_openmp()
+        import pypardiso
+        self.S = pypardiso.PyPardisoSolver(mtype=2)
+        for i, v in PARDISO_IPARMS:
+            self.S.set_iparm(i, v)
+        for name in ("MKL_Set_Num_Threads", "mkl_set_num_threads"):
+            fn = getattr(self.S.libmkl, name, None)
+            if fn is not None:
+                fn(ctypes.c_int(int(threads)))
+                break
+        self.A = matrix
+        self._zero = np.zeros((matrix.shape[0], 1))
+        self._call(11)
+
+    def _call(self, phase: int, b=None):
+        self.S.set_phase(phase)
+        return self.S._call_pardiso(self.A, self._zero if b is None else np.asfortranarray(b.reshape(-1, 1)))
+
+    def factorize(self) -> bool:
+        import pypardiso
+        try:
+            self._call(22)
+        except pypardiso.pardiso_wrapper.PyPardisoError:
+            return False
+        return True
+
+    def solve(self, rhs):
+        return self._call(33, rhs).reshape(-1)
+
+    def __del__(self):
+        try:
+            self.S.free_memory(everything=True)
+        except Exception:
+            pass
+
+
+def _quiet_openmp() -> None:
+    """MKL's OpenMP threads sleep as soon as a factorisation ends instead of spinning for 200 ms
+    (KMP_BLOCKTIME's default): the Taichi kernels that follow (assembly, the residual check) need
+    the same two cores.  Measured on the 64^2 cloth, one solve: 188-228 ms against 250-270 ms.
+    Must be set before MKL's OpenMP runtime starts; a value the user set is kept."""
+    import os
+    os.environ.setdefault("KMP_BLOCKTIME", "0")
+
+
+def pardiso_available() -> bool:
+    """True when MKL PARDISO can be loaded (the optional ``fast`` extra: pypardiso + mkl)."""
+    global _PARDISO_OK
+    if _PARDISO_OK is None:
+        _quiet_openmp()
+        try:
+            import pypardiso
+            pypardiso.PyPardisoSolver()
+            _PARDISO_OK = True
+        except Exception:
+            _PARDISO_OK = False
+    return _PARDISO_OK
+
+
+_PARDISO_OK: bool | None = None
+
+
+class PardisoSolver(DirectSolver):
+    """Sparse LL^T with MKL PARDISO (supernodal, multi-threaded).  The upper triangle of A' is
+    assembled into a CSR pattern fixed per model (:class:`engine.solvers.assembly.CSRPattern`: one gather
+    kernel per energy, a parallel loop over block rows, no atomics, bitwise reproducible), the
+    symbolic analysis is done once per model and only the numeric factorisation per solve."""
+
+    name = "pardiso"
+
+    def __init__(self, tol: float = 1e-8, max_iter: int = 1000, refinements: int = 2):
+        if not pardiso_available():
+            raise ValueError("solver 'pardiso' needs MKL PARDISO, which is not installed: "
+                             "pip install 'elastic-lessons[fast]' (x86-64), or use solver 'direct' or 'cholesky'")
+        super().__init__(tol, max_iter, refinements)
+
+    def _setup(self, model: Model) -> dict:
+        entry = super()._setup(model)
+        if "pattern" not in entry:
+            import scipy.sparse
+            from engine.runtime import current
+            pattern = CSRPattern(model)
+            values = np.zeros(pattern.nnz, dtype=np.float64)
+            N = 3 * model.n
+            A = scipy.sparse.csr_matrix((values, pattern.indices, pattern.indptr), shape=(N, N), copy=False)
+            A.has_sorted_indices = True
+            entry["pattern"], entry["matrix"] = pattern, A
+            info = current()
+            entry["_pardiso_threads"] = info.threads if info is not None else 2
+        return entry
+
+    def assemble_values(self, model: Model, entry: dict, x, a_s: float, psd: bool, extra) -> np.ndarray:
+        """Write the values of A' (P1) at x into the pattern's CSR values; returns them (numpy)."""
+        pattern, A = entry["pattern"], entry["matrix"]
+        values = A.data  # the kernels write the CSR values in place (a numpy array: no copy on the CPU)
+        init_rows(values, pattern.indptr_nd, model.mass_nd, model.inv_mass_nd, a_s)
+        terms = [(1.0, x, psd)] if extra is None else [(extra[0], extra[1], True), (1.0, x, psd)]
+        for scale, xx, ps in terms:
+            for e in model.energies:
+                if e.n_elements:
+                    assemble_rows(pattern, values, e, e.hessian_blocks(xx, ps), scale)
+        ti.sync()
+        return values
+
+    def _factorize(self, model, entry, x, a_s, psd, extra) -> bool:
+        t0 = time.perf_counter()
+        self.assemble_values(model, entry, x, a_s, psd, extra)
+        entry["_assembly_s"] = time.perf_counter() - t0
+        if "pardiso" not in entry:
+            entry["pardiso"] = _Pardiso(entry["matrix"], entry["_pardiso_threads"])  # analysis, once
+        return entry["pardiso"].factorize()
+
+    def _backsolve(self, entry, rhs):
+        return entry["pardiso"].solve(rhs)
+
+    def _product(self, model, entry, x, a_s, psd, extra):
+        """A' sol from the upper triangle U just factorised (U sol + U^T sol - diag(U) sol): the same
+        matrix, no second pass over the elements (at 128^2 about 4 ms less than the matrix-free
+        product and its copies)."""
+        U = entry["matrix"]
+        if "diag_pos" not in entry:
+            pos = U.indptr[:-1]   # each row of the sorted upper triangle starts at its diagonal
+            if not np.array_equal(U.indices[pos], np.arange(U.shape[0])):
+                raise RuntimeError("the PARDISO pattern lacks a diagonal entry at the start of a row")
+            entry["diag_pos"] = pos
+        d = U.data[entry["diag_pos"]]
+        return lambda sol, y: upper_product(U, sol, d)
