@@ -9,9 +9,7 @@ from __future__ import annotations
 
 import contextlib
 
-import numpy as np
-
-from engine.integrators.loop import Progress, chunks
+from engine.integrators.loop import Progress, Samples, chunks
 from engine.integrators.stepper import Stepper
 from engine.stability import stable_dt_estimate, substeps_for
 
@@ -75,14 +73,12 @@ def _recorded_run(ctx, name: str, dt: float, n_steps: int, every: int, advance, 
     rec = ctx.rec
     draw_every = _divisor_at_most(every, rec.frame_spacing(n_steps)) if log is not None and rec.enabled else None
     rec.run(name, view, n_steps=n_steps, dt=dt, draw_every=draw_every)
-    all_s, all_k, all_w = [np.zeros(0, dtype=np.int64)], [np.zeros(0)], [np.zeros(0)]
+    samples = Samples()
     run = chunks(advance, n_steps, every, draw_every, check_interrupt, progress=progress_bar(ctx, name, n_steps))
     with ctx.timed(name, n_steps), contextlib.closing(run):
         for c in run:
             if len(c.kinetic):
-                all_s.append(c.steps)
-                all_k.append(c.kinetic)
-                all_w.append(c.potential)
+                samples.add(c.steps, c.kinetic, c.potential)
                 if rec.enabled:
                     _record_energies(rec, c.steps, c.kinetic, c.potential, dt)
             if draw_every is not None and (c.error is not None or rec.wants_frame(c.done, c.done * dt)):
@@ -94,7 +90,7 @@ def _recorded_run(ctx, name: str, dt: float, n_steps: int, every: int, advance, 
                 rec.set_time(c.done, c.done * dt)
                 rec.mark(str(c.error), level="ERROR")
                 raise c.error
-    return np.concatenate(all_s), np.concatenate(all_k), np.concatenate(all_w)
+    return samples.arrays()
 
 
 def _record_energies(rec, steps, K, W, dt: float) -> None:

@@ -166,7 +166,7 @@ def cloth_stepper(model: Model, n_blocks: int | None = None, work: dict | None =
     n = model.n
     d = {} if work is None else work
     w = d.get("cloth_w")
-    if w is None:  # per model, not per plan: the Verlet acceleration in it outlives a rebuilt plan
+    if w is None:  # per work dict (a stepper's), not per plan: the Verlet acceleration outlives a new plan
         w = d["cloth_w"] = vec3_ndarray(4 * n)  # spring sums, hinge sums, boundary x, Verlet acceleration
     sync = d.get("cloth_sync")
     if sync is None:
@@ -305,11 +305,10 @@ class ForwardEuler(ExplicitIntegrator):
         state.t += dt
 
 
-class SymplecticEuler(ExplicitIntegrator):
-    """``fused`` (default): springs [+ one hinge energy] models take one kernel launch per step
-    (the stepper's cloth plan, bitwise the same result); others the generic path."""
-
-    name = "symplectic-euler"
+class _FusedIntegrator(ExplicitIntegrator):
+    """A method the one-launch cloth step knows. ``fused`` (default): a stepper may plan that step
+    for springs [+ one hinge energy] models (one kernel launch per step, bitwise the same result);
+    otherwise, and for other models, :meth:`_generic_advance` takes the step."""
 
     def __init__(self, fused: bool = True):
         self.fused = bool(fused)
@@ -317,25 +316,30 @@ class SymplecticEuler(ExplicitIntegrator):
     def advance(self, stepper, state, dt):
         if stepper.cloth is not None:
             stepper.cloth(state, dt, self.name)
-            state.t += dt
-            return
+        else:
+            self._generic_advance(stepper, state, dt)
+        state.t += dt
+
+    def _generic_advance(self, stepper, state, dt) -> None:
+        raise NotImplementedError
+
+
+class SymplecticEuler(_FusedIntegrator):
+    name = "symplectic-euler"
+
+    def _generic_advance(self, stepper, state, dt):
         model = stepper.model
         f = self._elastic_forces(stepper, state)
         K.update_kernel(state.x, state.v, f, f, model.inv_mass_nd, model.gravity_vec, dt, K.SYMPLECTIC_EULER,
                         K.STEP)
-        state.t += dt
 
 
-class VelocityVerlet(ExplicitIntegrator):
+class VelocityVerlet(_FusedIntegrator):
     """Kick-drift-kick.  The acceleration a(x) is computed in :meth:`begin` (one extra force
     evaluation per run, not per step) and then carried from step to step in the stepper's work
-    arrays. ``fused`` (default): springs [+ one hinge energy] models take one kernel launch per step
-    (the stepper's cloth plan, bitwise the same result); others the generic path."""
+    arrays (or the cloth step's)."""
 
     name = "velocity-verlet"
-
-    def __init__(self, fused: bool = True):
-        self.fused = bool(fused)
 
     def begin(self, stepper, state):
         if stepper.cloth is not None:
@@ -346,11 +350,7 @@ class VelocityVerlet(ExplicitIntegrator):
         K.update_kernel(state.x, state.v, f, stepper.work.vec3("a"), model.inv_mass_nd, model.gravity_vec, 0.0,
                         K.VELOCITY_VERLET, K.ACCEL_KICK)
 
-    def advance(self, stepper, state, dt):
-        if stepper.cloth is not None:
-            stepper.cloth(state, dt, self.name)
-            state.t += dt
-            return
+    def _generic_advance(self, stepper, state, dt):
         model = stepper.model
         a = stepper.work.vec3("a")
         K.update_kernel(state.x, state.v, a, a, model.inv_mass_nd, model.gravity_vec, dt, K.VELOCITY_VERLET,
@@ -358,4 +358,3 @@ class VelocityVerlet(ExplicitIntegrator):
         f = self._elastic_forces(stepper, state)
         K.update_kernel(state.x, state.v, f, a, model.inv_mass_nd, model.gravity_vec, 0.5 * dt, K.VELOCITY_VERLET,
                         K.ACCEL_KICK)
-        state.t += dt

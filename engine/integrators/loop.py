@@ -67,6 +67,22 @@ class Progress:
             self.bar = None
 
 
+class Samples:
+    """A run's energy samples, gathered chunk by chunk: :meth:`add` a chunk's, :meth:`arrays` for
+    the whole run's (steps, kinetic, potential)."""
+
+    def __init__(self):
+        self.steps, self.kinetic, self.potential = [np.zeros(0, dtype=np.int64)], [np.zeros(0)], [np.zeros(0)]
+
+    def add(self, steps, kinetic, potential) -> None:
+        self.steps.append(np.asarray(steps, dtype=np.int64))
+        self.kinetic.append(np.asarray(kinetic))
+        self.potential.append(np.asarray(potential))
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return np.concatenate(self.steps), np.concatenate(self.kinetic), np.concatenate(self.potential)
+
+
 @dataclass
 class Chunk:
     """What one chunk of a run did. ``done``: steps done after it (0 for the first, empty chunk,
@@ -106,7 +122,7 @@ def _chunks(advance, n_steps, every, draw_every, check_interrupt, bar):
             raise ValueError(f"draw_every ({chunk_len}) must divide every ({every})")
     empty = np.zeros(0)
     yield Chunk(0, np.zeros(0, dtype=np.int64), empty, empty, True)
-    all_s, all_k, all_w = [], [], []
+    run = Samples()
     done = 0
     while done < n_steps:
         if check_interrupt is not None:
@@ -121,17 +137,14 @@ def _chunks(advance, n_steps, every, draw_every, check_interrupt, bar):
             if steps is None:
                 steps = np.arange(done + 1, done + 1 + len(K))
             steps = np.asarray(steps, dtype=np.int64)
-            exc.steps = np.concatenate(all_s + [steps])
-            exc.kinetic = np.concatenate(all_k + [K])
-            exc.potential = np.concatenate(all_w + [W])
+            run.add(steps, K, W)
+            exc.steps, exc.kinetic, exc.potential = run.arrays()
             if bar is not None:
                 bar.close()  # cleared before anything reports the blow-up
             yield Chunk(exc.step + 1, steps, K, W, True, exc)
             return
         steps, K, W = np.asarray(steps, dtype=np.int64), np.asarray(K), np.asarray(W)
-        all_s.append(steps)
-        all_k.append(K)
-        all_w.append(W)
+        run.add(steps, K, W)
         done += chunk
         if bar is not None:
             bar.update(done)
@@ -141,11 +154,9 @@ def _chunks(advance, n_steps, every, draw_every, check_interrupt, bar):
 def run(advance, n_steps: int, every: int, check_interrupt=None, progress: "Progress | str | None" = None):
     """The whole run of :func:`chunks`: (steps, kinetic, potential) of all its energy samples; a
     blow-up is raised with the samples up to the bad step in ``steps``/``kinetic``/``potential``."""
-    all_s, all_k, all_w = [np.zeros(0, dtype=np.int64)], [np.zeros(0)], [np.zeros(0)]
+    samples = Samples()
     for c in chunks(advance, n_steps, every, None, check_interrupt, progress):
         if c.error is not None:
             raise c.error
-        all_s.append(c.steps)
-        all_k.append(c.kinetic)
-        all_w.append(c.potential)
-    return np.concatenate(all_s), np.concatenate(all_k), np.concatenate(all_w)
+        samples.add(c.steps, c.kinetic, c.potential)
+    return samples.arrays()

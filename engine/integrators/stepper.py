@@ -136,7 +136,7 @@ class Stepper:
                 return np.arange(done + 1, done + chunk + 1), K, W
             return advance
         self._check_plan()
-        self.monitor = monitor = Monitor(self.name, h, energy_bound, model=self.model)
+        monitor = Monitor(self.name, h, energy_bound, model=self.model)
         if self.many_steps and energy_every == 1 and substeps == 1:
             def advance(chunk, done):
                 if check_interrupt is not None:

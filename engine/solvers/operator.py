@@ -129,7 +129,8 @@ def apply_system(model: Model, x, p, q, mass_coef: float, hess_coef: float = 1.0
 class LinearSolver:
     """Base class: ``solve(model, x, b, y, mass_coef, hess_coef=1.0) -> LinearSolveInfo`` solves
     (L1)-(L2) for y (overwritten; 0 on pinned vertices).  ``tol`` is the relative residual (L3)
-    to reach, ``max_iter`` the iteration limit.  Work arrays are cached per model."""
+    to reach, ``max_iter`` the iteration limit.  The set-up for a model (work arrays, pattern,
+    analysis) is kept for one model at a time, or in a Stepper's holder (:meth:`using`)."""
 
     name = "linear"
 
