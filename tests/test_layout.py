@@ -144,3 +144,15 @@ def test_each_list_of_names_is_written_once():
                         {"pcg", "cholesky", "pardiso"} <= words:
                     lists.append(f"{p.relative_to(ROOT)}:{node.lineno}")
     assert len(lists) == 2 and all(x.startswith("engine/constants.py:") for x in lists), lists
+
+
+def test_tests_mirror_the_tree():
+    """Tests live beside what they test: tests/engine, tests/lessons and tests/app; only the layout
+    rules, the shared fixtures and the helpers sit at the top, and an engine test never drives the
+    application."""
+    tests = ROOT / "tests"
+    assert sorted(p.name for p in tests.glob("*.py")) == ["conftest.py", "helpers.py", "test_layout.py"]
+    assert {p.parent.name for p in tests.rglob("test_*.py")} == {"tests", "engine", "lessons", "app"}
+    offenders = {str(p.relative_to(ROOT)): sorted(m for m in _modules(p) if m.startswith(("lessons.app", "lessons.tools")))
+                 for p in sorted((tests / "engine").glob("*.py"))}
+    assert {k: v for k, v in offenders.items() if v} == {}

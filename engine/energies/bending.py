@@ -47,7 +47,7 @@ exactly -grad of (W2): conservative.  It is NOT Bridson et al.'s literal force, 
 the coefficient from the current shape: the two agree while a hinge keeps its rest edge
 length and wing areas and differ by the ratio of the coefficients otherwise (1.21 on a hinge
 10% longer along its edge and 10% lower across it), and the literal force is the gradient of
-no energy (its Jacobian is not symmetric); tests/test_bending_energy.py measures both.
+no energy (its Jacobian is not symmetric); tests/engine/test_bending_energy.py measures both.
 For a rest angle we use sin((theta - theta_bar)/2) (Bridson writes sin(theta/2) -
 sin(theta_bar/2); the two agree to first order in the deviation).  Compared with the
 notes' force k_e theta u, the force ratio at theta_bar = 0 is

@@ -11,7 +11,7 @@ from engine.errors import ParameterError
 
 from .._framework import Lesson, narrated_stages, param
 from . import stages
-from .stages import simulate  # the rod's chunked runner (tests/test_blowups.py drives it directly)
+from .stages import simulate  # the rod's chunked runner (tests/lessons/test_blowups.py drives it directly)
 
 
 @dataclass

@@ -31,7 +31,7 @@ from lessons.tools.viewer_requirements import APT_INSTALL, ViewerUnavailable, mi
 
 pytestmark = pytest.mark.viewer
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 LESSON_IDS = [lesson.id for lesson in registry.all_lessons()]
 
 # Fraction of a scene view's pixels that must be drawn (1600x1000 window, paused at the start).
@@ -64,7 +64,7 @@ def _skip_or_fail(reason: str):
 def viewer_recordings(request) -> Path:
     """A directory with <lesson>.rrd for every lesson: ELASTIC_VIEWER_RECORDINGS, else the
     session's default recordings (tests/conftest.py: default_recordings, shared with
-    tests/test_recordings.py)."""
+    tests/app/test_recordings.py)."""
     given = os.environ.get("ELASTIC_VIEWER_RECORDINGS")
     if given:
         return Path(given)

@@ -2,7 +2,7 @@
 engine/waves.py, and finite-difference checks of the area/volume-spring energy on jittered
 meshes.
 
-Not repeated here (tests/test_mesh.py has them): edge measures and lumped masses summing to
+Not repeated here (tests/engine/test_mesh.py has them): edge measures and lumped masses summing to
 the total area/volume/mass on every generator (jittered too), and the bad-mesh errors.
 """
 import math

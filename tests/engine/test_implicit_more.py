@@ -1,5 +1,5 @@
 """More checks of backward Euler and its linear solvers on the shared hanging-cloth scene
-(engine/scenes.py), complementing tests/test_implicit.py and tests/test_linalg.py:
+(engine/scenes.py), complementing tests/engine/test_implicit.py and tests/engine/test_solvers.py:
 
 - stability at 100x the explicit limit on the cloth (springs + bending + gravity + pins);
 - the damping factor 1/(1 + w^2 dt^2) of an in-plane cloth mode with one Newton iteration;

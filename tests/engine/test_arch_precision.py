@@ -21,7 +21,7 @@ import pytest
 from engine.errors import BlowUpError
 from engine.scenes import Rod
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 NO_DEVICE = 77  # exit code of the vulkan probe script where Taichi finds no Vulkan device
 
 

@@ -179,7 +179,7 @@ def test_options_before_the_lesson_are_read_as_options(tmp_path):
     (["run", "rod-waves", "--record", "sub"], "--record sub: cannot write there"),
     (["run", "rod-waves", "--no-record", "--results", "blocker/res.json"], "--results blocker/res.json: cannot write"),
     (["run", "rod-waves", "--no-record", "--results", "sub"], "--results sub: cannot write there"),
-    # (a missing directory is created, as for --record: tests/test_output_files.py)
+    # (a missing directory is created, as for --record: tests/app/test_output_files.py)
     (["run", "rod-waves", "--no-record", "--results", "blocker/new/res.json"], "--results blocker/new/res.json: cannot"),
     (["run", "rod-waves", "--no-record", "--results", "r" * 300], "cannot write there"),
     (["run", "rod-waves", "--results", "blocker/res.json", "--record", "new/r.rrd"], "--results blocker/res.json"),

@@ -1,7 +1,7 @@
 """Lesson bending: every experiment, with its key figures asserted explicitly, and the recording.
 
-The engine's own physics tests are in tests/test_bending_energy.py (angle, gradients,
-Hessians, invariances, errors: B < 0, degenerate wings) and tests/test_mesh.py (hinges on
+The engine's own physics tests are in tests/engine/test_bending_energy.py (angle, gradients,
+Hessians, invariances, errors: B < 0, degenerate wings) and tests/engine/test_mesh.py (hinges on
 open and closed meshes, boundary edges without hinges, non-manifold edges refused); they
 are not repeated here.
 """

@@ -1,8 +1,8 @@
 """Lesson explicit-vs-implicit: every experiment, with its key figures asserted explicitly, the
 recording, and that every run is fixed (about one integrator) whatever --integrator says.
 
-Engine-level checks of backward Euler and its linear solvers are in tests/test_implicit.py,
-tests/test_linalg.py and tests/test_implicit_more.py; they are not repeated here.
+Engine-level checks of backward Euler and its linear solvers are in tests/engine/test_implicit.py,
+tests/engine/test_solvers.py and tests/engine/test_implicit_more.py; they are not repeated here.
 """
 import math
 

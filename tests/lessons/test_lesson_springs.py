@@ -2,7 +2,7 @@
 (engine.integrators.explicit.run_many_steps) against the step-by-step explicit integrators.
 
 The bad-input cases of the issue (zero/negative rest length, coincident endpoints, k <= 0,
-edge or pin index out of range) are covered by tests/test_springs_engine.py.
+edge or pin index out of range) are covered by tests/engine/test_springs_energy.py.
 """
 import math
 
