@@ -3,8 +3,16 @@ stages scale with the parameters), a stage over the budget is refused up front w
 set it, and a long stage says how long it will take before it starts.
 
 The estimates are for the reference 2-thread CPU; ``time_text`` writes them for people.
+
+One vocabulary for every lesson: a lesson's ``scene.py`` answers ``stage_seconds(cfg, stage)``, the
+seconds stage ``stage`` takes on the reference CPU (however it counts its work inside: steps,
+node-steps, launches), and lists ``BUDGET = {stage: StageCost(flags, advice)}``, the parameters that
+set each stage's work and what to change. ``check_stages`` refuses a configuration up front from
+those two; ``announce`` says before a long stage how long it takes.
 """
 import math
+from dataclasses import dataclass
+from typing import Callable
 
 from engine.errors import ParameterError
 
@@ -21,6 +29,21 @@ def time_text(seconds: float) -> str:
     if seconds >= 3600:
         return f"{seconds / 3600:.3g} h"
     return f"{seconds / 60:.0f} min" if seconds >= 60 else f"{seconds:.0f} s"
+
+
+@dataclass(frozen=True)
+class StageCost:
+    """What sets a stage's work (``flags``: the options, as the user types them) and what to change
+    when it is over the budget (``advice``)."""
+    flags: str
+    advice: str
+
+
+def check_stages(cfg, stage_seconds: Callable[[object, int], float], budget: dict) -> None:
+    """Refuse ``cfg`` when any stage of ``budget`` ({stage: StageCost}) would take more than
+    WORK_BUDGET_S by ``stage_seconds(cfg, stage)``."""
+    for stage, cost in budget.items():
+        refuse_over_budget(stage, stage_seconds(cfg, stage), cost.flags, cost.advice)
 
 
 def refuse_over_budget(stage: int, seconds: float, flags: str, advice: str) -> None:
