@@ -153,9 +153,39 @@ def _live_viewer(args, paths: dict, out) -> bool:
 
 
 def run(argv: list[str], out=None, err=None, stdin=None, signals: "_Signals | None" = None) -> int:
+    """``python -m lessons run ARGV``: check the arguments, the lessons' parameters, the runtime and
+    the output paths (bad input raises UsageError before anything runs or is written), then run the
+    chosen lessons and write their files. Returns the exit code; a signal, a closed pipe, a file that
+    could not be written or an internal error is raised after the files are written."""
     out = sys.stdout if out is None else out  # looked up per call (the streams may be redirected)
     err = sys.stderr if err is None else err
     stdin = sys.stdin if stdin is None else stdin
+    plan = _plan_run(argv, stdin, out)
+    info = _start_runtime(plan.args, plan.chosen, plan.configs, err)
+    outputs = _prepare_outputs(plan.args, plan.chosen)
+    session = _Session(plan, info, outputs, signals if signals is not None else _Signals(), out, err)
+    return session.execute()
+
+
+@dataclasses.dataclass
+class _RunPlan:
+    """What one ``run`` asks for, checked: its arguments as typed (``argv``) and parsed (``args``),
+    the lessons to run, the stepping options, the stage numbers (None: every stage), the ``--pause``
+    prompt (None without it) and each lesson's configuration by id."""
+
+    argv: list[str]
+    args: object
+    chosen: list
+    stepping: Stepping
+    stages: list[int] | None
+    pause: _Pause | None
+    configs: dict
+
+
+def _parse_lesson_argument(argv: list[str]):
+    """Parse ``run``'s arguments with the parser of the lesson they name; returns (the parsed
+    arguments, the lessons to run, the lesson named or None for 'all'). A missing or unknown
+    lesson is a UsageError."""
     lessons_ = registry.all_lessons()
     ids = [l.id for l in lessons_]
     by_id = {l.id: l for l in lessons_}
@@ -167,8 +197,14 @@ def run(argv: list[str], out=None, err=None, stdin=None, signals: "_Signals | No
     if lesson_arg is not None and lesson is None and lesson_arg != "all":
         raise UsageError(f"LESSON must be one of {', '.join(ids)}, or all (got {lesson_arg!r})")
     args = parser.parse_args(argv)
+    return args, (lessons_ if args.lesson == "all" else [lesson]), lesson
 
-    chosen = lessons_ if args.lesson == "all" else [lesson]
+
+def _plan_run(argv: list[str], stdin, out) -> _RunPlan:
+    """Parse and check ``run``'s arguments: the lesson, its parameter overrides, the stepping
+    options, ``--stage`` and ``--pause``, and every chosen lesson's configuration. Bad input is a
+    UsageError; nothing has run yet."""
+    args, chosen, lesson = _parse_lesson_argument(argv)
     overrides = {f.name: getattr(args, f.name) for f in dataclasses.fields(lesson.config)
                  if getattr(args, f.name, None) is not None} if lesson else {}
     stepping = Stepping(**{f.name: getattr(args, f.name) for f in dataclasses.fields(Stepping)
@@ -182,8 +218,14 @@ def run(argv: list[str], out=None, err=None, stdin=None, signals: "_Signals | No
         raise UsageError("--pause needs an interactive terminal (stdin is not a tty); run without --pause, "
                          "or with --stage N to run one stage")
     pause = _Pause(stdin, out) if args.pause else None
+    configs = _validated_configs(chosen, lesson, overrides, stepping)
+    return _RunPlan(argv, args, chosen, stepping, stages, pause, configs)
 
-    # Validate everything before any kernel runs or any file is written.
+
+def _validated_configs(chosen: list, lesson, overrides: dict, stepping: Stepping) -> dict:
+    """Each chosen lesson's configuration by id (the overrides apply to ``lesson``, the one named),
+    validated with the stepping options before any kernel runs or any file is written; a bad value
+    is a UsageError."""
     configs = {}
     try:
         validate_config(stepping)
@@ -195,6 +237,13 @@ def run(argv: list[str], out=None, err=None, stdin=None, signals: "_Signals | No
             configs[l.id] = cfg
     except ValueError as exc:  # ParameterError, mesh/model errors: bad input, not a crash
         raise UsageError(str(exc)) from None
+    return configs
+
+
+def _start_runtime(args, chosen: list, configs: dict, err):
+    """Start the Taichi runtime that ``--arch`` and ``--threads`` ask for (its warnings go to
+    ``err``) and check that it can run each chosen lesson; returns the runtime's description. A
+    runtime that cannot be had is a UsageError."""
     from engine import runtime
     try:
         runtime.init(arch=args.arch, threads=args.threads, warn=lambda line: _say(err, line))
@@ -202,42 +251,117 @@ def run(argv: list[str], out=None, err=None, stdin=None, signals: "_Signals | No
         check(chosen, configs)  # f64 only, and the backends each lesson's physics holds on
     except runtime.RuntimeConfigError as exc:
         raise UsageError(str(exc)) from None
+    return runtime.current()
 
-    info = runtime.current()
 
-    # Every output path: checked (kinds, names, overlaps), then created as empty temporary files
-    # beside their targets, before the first stage; a bad one is bad input (exit 2, nothing left).
+def _prepare_outputs(args, chosen: list):
+    """Every output path: checked (kinds, names, overlaps), then created as empty temporary files
+    beside their targets, before the first stage; a bad one is bad input (exit 2, nothing left).
+    Returns (the results target or None, the recording target by lesson id, every (option, target))."""
     results_target, record_targets = _outputs(args, chosen)
     targets = ([("--results", results_target)] if results_target is not None else []) + [
         ("--record", t) for t in record_targets.values() if t is not None]
     _prepare(targets)
+    return results_target, record_targets, targets
 
-    signals = signals if signals is not None else _Signals()
-    requested = {l.id: list(stages) if stages else list(range(1, len(l.stages) + 1)) for l in chosen}
-    completed: dict[str, list[int]] = {l.id: [] for l in chosen}
-    results: list[dict] = []
-    started = time.time()
-    common = dict(version=_package_version(), runtime=info.as_dict() if info is not None else None)
-    all_passed, stopped, failure = True, False, None
-    open_rec = None  # (recorder, lesson) of the lesson being run, until its recording is closed
 
-    def stages_done(lesson_id: str) -> list[int]:
-        return sorted({r["stage"] for r in results if r.get("lesson") == lesson_id})
+class _Session:
+    """One ``run`` after its checks: runs the chosen lessons one after another, closes each one's
+    recording (partial unless every stage asked ran), and at the end, however the run ended, writes
+    the results, removes any temporary file left and prints the summary. It holds what the run has
+    done so far: the stages asked and completed per lesson, the experiments' results, whether every
+    one passed, whether ``--pause`` stopped the run, and the exception that ended it."""
 
-    def close_recording(rec, l, exc, stop_here: bool, passed: bool) -> None:
-        """Write the lesson's recording (partial unless every stage asked ran) and say where."""
-        nonlocal open_rec
-        open_rec = None
-        target = record_targets.get(l.id)
+    def __init__(self, plan: _RunPlan, info, outputs, signals: _Signals, out, err):
+        self.plan, self.info, self.signals, self.out, self.err = plan, info, signals, out, err
+        self.results_target, self.record_targets, self.targets = outputs
+        stages = plan.stages
+        self.requested = {l.id: list(stages) if stages else list(range(1, len(l.stages) + 1)) for l in plan.chosen}
+        self.completed: dict[str, list[int]] = {l.id: [] for l in plan.chosen}
+        self.results: list[dict] = []
+        self.started = time.time()
+        self.version = _package_version()
+        self.runtime = info.as_dict() if info is not None else None
+        self.all_passed, self.stopped, self.failure = True, False, None
+        self.open_rec = None  # (recorder, lesson) of the lesson being run, until its recording is closed
+
+    def execute(self) -> int:
+        """Run the lessons and write the files; returns the exit code, or raises the exception
+        that ended the run once the files are written."""
+        live = _live_viewer(self.plan.args, {k: (t.path if t is not None else None)
+                                             for k, t in self.record_targets.items()}, self.out)
+        try:
+            self._run_lessons(live)
+        except BaseException as exc:
+            self.failure = exc
+        finally:
+            self._finish()
+        if self.failure is not None:
+            raise self.failure
+        if self.signals.first is not None:  # came during the clean-up of a finished run
+            return 128 + self.signals.first
+        return EXIT_OK if self.all_passed else EXIT_FAILED
+
+    def _run_lessons(self, live: bool) -> None:
+        """Say which runtime runs the lessons, then run them in turn until the last one, or until
+        ``--pause`` stops the run (asked before each lesson after the first, and between stages)."""
+        info, chosen, pause = self.info, self.plan.chosen, self.plan.pause
+        _say(self.out, f"runtime: {info.describe()}" if info is not None else "runtime: not initialised")
+        for number, l in enumerate(chosen, 1):
+            if pause is not None and number > 1 and not pause.ask(
+                    f"lesson {number}/{len(chosen)}: {l.id}, stage 1/{len(l.stages)}: {l.stages[0].title}"):
+                self.stopped = True
+                break
+            if self._run_lesson(l, live):
+                self.stopped = True
+                break
+
+    def _run_lesson(self, l, live: bool) -> bool:
+        """Run the stages asked of lesson ``l`` into a new recorder, then close its recording;
+        returns whether ``--pause`` stopped the run during the lesson. An exception from the lesson
+        closes the recording (partial) and is raised again."""
+        plan, pause = self.plan, self.plan.pause
+        rec = _make_recorder(l, self.record_targets[l.id], live)
+        self.open_rec = (rec, l)
+        # between= only with --pause (a runner stubbed in the tests may not take it)
+        extra = {} if pause is None else {"between": pause.for_lesson(l)}
+        try:
+            ok = run_lesson(l, plan.configs[l.id], rec, plan.stages, out=self.out, err=self.err,
+                            quiet=plan.args.quiet, results=self.results, stepping=plan.stepping, **extra)
+        except BaseException as exc:
+            self._close_unfinished(rec, l, exc)
+            raise
+        stop_here = pause is not None and pause.stopped
+        self.completed[l.id] = self._stages_done(l.id) if stop_here else list(self.requested[l.id])
+        self.all_passed &= ok
+        self._close_recording(rec, l, None, stop_here, ok)
+        return stop_here
+
+    def _stages_done(self, lesson_id: str) -> list[int]:
+        """The stages of the lesson that have results, in ascending order."""
+        return sorted({r["stage"] for r in self.results if r.get("lesson") == lesson_id})
+
+    def _close_unfinished(self, rec, l, exc: BaseException | None) -> None:
+        """Close the recording of lesson ``l``, which did not finish (``exc``: why), with the
+        stages that ran; from here on a signal is only noted. A recording that cannot be written is
+        reported on one line and not raised: the run's own failure is the one that counts."""
+        self.signals.cleaning = True
+        self.completed[l.id] = self._stages_done(l.id)
+        try:
+            self._close_recording(rec, l, exc, False, False)
+        except OutputFailed as e:
+            _say(self.err, f"python -m lessons: error: {e}")
+
+    def _close_recording(self, rec, l, exc: BaseException | None, stop_here: bool, passed: bool) -> None:
+        """Write the lesson's recording (partial unless every stage asked ran) and say where. A
+        signal that comes while the file is written is noted, and raised once it is written (unless
+        the run was already cleaning up); a file that cannot be written raises OutputFailed."""
+        self.open_rec = None
+        target = self.record_targets.get(l.id)
         code, reason = _outcome(exc, stop_here, passed)
-        complete = completed[l.id] == requested[l.id]
-        status = dict(complete=complete, exit_reason=reason, exit_code=code, lesson=l.id,
-                      stages_requested=requested[l.id], stages_completed=completed[l.id],
-                      arch=common["runtime"]["arch"] if common["runtime"] else None,
-                      backend=common["runtime"]["backend"] if common["runtime"] else None,
-                      precision=common["runtime"]["precision"] if common["runtime"] else None,
-                      threads=common["runtime"]["threads"] if common["runtime"] else None,
-                      version=common["version"], finished=_now())
+        complete = self.completed[l.id] == self.requested[l.id]
+        status = self._recording_status(l, complete, code, reason)
+        signals = self.signals
         was_cleaning = signals.cleaning
         signals.cleaning = True  # a signal now is noted; the file is finished first
         try:
@@ -248,100 +372,90 @@ def run(argv: list[str], out=None, err=None, stdin=None, signals: "_Signals | No
                                f"removed") from None
         finally:
             signals.cleaning = was_cleaning
-        if getattr(rec, "live_error", None):
-            _say(err, f"--view: the live viewer stopped receiving ({rec.live_error}); the recording file is "
-                      f"complete")
-        if written is not None:
-            if complete:
-                _say(out, f"\nrecording: {_shown(str(written))}  (open with: rerun {_shown(str(written))})")
-            else:
-                kept = (f"; the earlier {_shown(str(target.path))} is kept" if target.path != written
-                        and target.path.exists() else "")
-                _say(out, f"\nrecording (PARTIAL: {reason}; stages {_stage_list(completed[l.id])} of "
-                          f"{_stage_list(requested[l.id])}): {_shown(str(written))}{kept}")
+        self._report_recording(rec, l, target, written, complete, reason)
         if not was_cleaning and signals.received and not signals.raised:
             signals.raised = True  # a signal came while the file was written: stop now
             first = signals.first
             raise KeyboardInterrupt() if first == signal.SIGINT else Terminated(first)
 
-    live = _live_viewer(args, {k: (t.path if t is not None else None) for k, t in record_targets.items()}, out)
-    try:
-        _say(out, f"runtime: {info.describe()}" if info is not None else "runtime: not initialised")
-        for number, l in enumerate(chosen, 1):
-            if pause is not None and number > 1 and not pause.ask(
-                    f"lesson {number}/{len(chosen)}: {l.id}, stage 1/{len(l.stages)}: {l.stages[0].title}"):
-                stopped = True
-                break
-            rec = _make_recorder(l, record_targets[l.id], live)
-            open_rec = (rec, l)
-            # between= only with --pause (a runner stubbed in the tests may not take it)
-            extra = {} if pause is None else {"between": pause.for_lesson(l)}
-            try:
-                ok = run_lesson(l, configs[l.id], rec, stages, out=out, err=err, quiet=args.quiet,
-                                results=results, stepping=stepping, **extra)
-            except BaseException as exc:
-                signals.cleaning = True
-                completed[l.id] = stages_done(l.id)
-                try:
-                    close_recording(rec, l, exc, False, False)
-                except OutputFailed as e:  # the run's own failure is the one that counts
-                    _say(err, f"python -m lessons: error: {e}")
-                raise
-            stop_here = pause is not None and pause.stopped
-            completed[l.id] = stages_done(l.id) if stop_here else list(requested[l.id])
-            all_passed &= ok
-            close_recording(rec, l, None, stop_here, ok)
-            if stop_here:
-                stopped = True
-                break
-    except BaseException as exc:
-        failure = exc
-    finally:
-        signals.cleaning = True
-        if open_rec is not None:  # interrupted between the lesson's end and its recording's close
-            rec, l = open_rec
-            completed[l.id] = stages_done(l.id)
-            try:
-                close_recording(rec, l, failure, False, False)
-            except OutputFailed as e:
-                _say(err, f"python -m lessons: error: {e}")
-        code, reason = _outcome(failure, stopped, all_passed)
-        complete = all(completed[l.id] == requested[l.id] for l in chosen)
-        if results_target is not None:
-            doc = results_document(
-                results, complete=complete, exit_code=code, exit_reason=reason, lessons=[l.id for l in chosen],
-                stages_requested=requested, stages_completed=completed,
-                parameters={l: dataclasses.asdict(c) for l, c in configs.items()},
-                stepping=dataclasses.asdict(stepping), runtime=common["runtime"], version=common["version"],
-                command=["python -m lessons", "run", *argv], started=_now(started), finished=_now(),
-                elapsed_s=round(time.time() - started, 3))
-            try:
-                results_target.write_bytes(encode_results(doc))
-                where = results_target.commit(complete)
-                if complete:
-                    _say(out, f"results: {_shown(str(where))}")
-                else:
-                    kept = (f"; the earlier {_shown(str(results_target.path))} is kept"
-                            if results_target.path.exists() else "")
-                    _say(out, f"results (PARTIAL: {reason}): {_shown(str(where))}{kept}")
-            except OutputWriteError as e:
-                _say(err, f"python -m lessons: error: --results {_shown(results_target.given)}: could not write "
-                          f"the results ({e.strerror or e}); the earlier file there is kept and the partial one "
-                          f"removed")
-                if failure is None:
-                    failure = OutputFailed("the results could not be written")
-                    failure.reported = True
-        for _, t in targets:  # any temporary file still there (a recorder never made)
+    def _recording_status(self, l, complete: bool, code: int, reason: str) -> dict:
+        """The status stored in lesson ``l``'s recording: whether it is complete, how and why the
+        run ended, the stages asked and completed, the runtime, the version and the time now."""
+        rt = self.runtime
+        return dict(complete=complete, exit_reason=reason, exit_code=code, lesson=l.id,
+                    stages_requested=self.requested[l.id], stages_completed=self.completed[l.id],
+                    arch=rt["arch"] if rt else None, backend=rt["backend"] if rt else None,
+                    precision=rt["precision"] if rt else None, threads=rt["threads"] if rt else None,
+                    version=self.version, finished=_now())
+
+    def _report_recording(self, rec, l, target, written, complete: bool, reason: str) -> None:
+        """Say that the live viewer stopped receiving (if it did) and where the recording of lesson
+        ``l`` was written (``written``; None: nowhere), with, for a partial one, the stages it
+        holds and whether an earlier file under the final name is kept."""
+        if getattr(rec, "live_error", None):
+            _say(self.err, f"--view: the live viewer stopped receiving ({rec.live_error}); the recording file is "
+                           f"complete")
+        if written is None:
+            return
+        if complete:
+            _say(self.out, f"\nrecording: {_shown(str(written))}  (open with: rerun {_shown(str(written))})")
+        else:
+            kept = (f"; the earlier {_shown(str(target.path))} is kept" if target.path != written
+                    and target.path.exists() else "")
+            _say(self.out, f"\nrecording (PARTIAL: {reason}; stages {_stage_list(self.completed[l.id])} of "
+                           f"{_stage_list(self.requested[l.id])}): {_shown(str(written))}{kept}")
+
+    def _finish(self) -> None:
+        """The end of the run, however it ended (signals from here on are only noted): close a
+        recording still open, write the results, remove any temporary file still there (a recorder
+        never made) and print how many experiments passed."""
+        self.signals.cleaning = True
+        if self.open_rec is not None:  # interrupted between the lesson's end and its recording's close
+            rec, l = self.open_rec
+            self._close_unfinished(rec, l, self.failure)
+        code, reason = _outcome(self.failure, self.stopped, self.all_passed)
+        complete = all(self.completed[l.id] == self.requested[l.id] for l in self.plan.chosen)
+        if self.results_target is not None:
+            self._write_results(code, reason, complete)
+        for _, t in self.targets:
             t.discard()
-        n_fail = sum(not r["passed"] for r in results)
-        _say(out, f"\n{len(results) - n_fail} of {len(results)} experiments passed"
-                  + ("" if n_fail == 0 else f"; {n_fail} FAILED")
-                  + ("" if complete else f" (the run did not complete: {reason})"))
-    if failure is not None:
-        raise failure
-    if signals.first is not None:  # came during the clean-up of a finished run
-        return 128 + signals.first
-    return EXIT_OK if all_passed else EXIT_FAILED
+        n_fail = sum(not r["passed"] for r in self.results)
+        _say(self.out, f"\n{len(self.results) - n_fail} of {len(self.results)} experiments passed"
+                       + ("" if n_fail == 0 else f"; {n_fail} FAILED")
+                       + ("" if complete else f" (the run did not complete: {reason})"))
+
+    def _write_results(self, code: int, reason: str, complete: bool) -> None:
+        """Write the ``--results`` file (partial unless the run completed) and say where; if it
+        cannot be written, say so on one line and make that the run's failure when it has none."""
+        target = self.results_target
+        doc = self._results_document(code, reason, complete)
+        try:
+            target.write_bytes(encode_results(doc))
+            where = target.commit(complete)
+            if complete:
+                _say(self.out, f"results: {_shown(str(where))}")
+            else:
+                kept = f"; the earlier {_shown(str(target.path))} is kept" if target.path.exists() else ""
+                _say(self.out, f"results (PARTIAL: {reason}): {_shown(str(where))}{kept}")
+        except OutputWriteError as e:
+            _say(self.err, f"python -m lessons: error: --results {_shown(target.given)}: could not write "
+                           f"the results ({e.strerror or e}); the earlier file there is kept and the partial one "
+                           f"removed")
+            if self.failure is None:
+                self.failure = OutputFailed("the results could not be written")
+                self.failure.reported = True
+
+    def _results_document(self, code: int, reason: str, complete: bool) -> dict:
+        """The results file's document: every experiment's result and how the run went (its
+        lessons, stages, parameters, stepping, runtime, version, command line and times)."""
+        plan = self.plan
+        return results_document(
+            self.results, complete=complete, exit_code=code, exit_reason=reason,
+            lessons=[l.id for l in plan.chosen], stages_requested=self.requested, stages_completed=self.completed,
+            parameters={l: dataclasses.asdict(c) for l, c in plan.configs.items()},
+            stepping=dataclasses.asdict(plan.stepping), runtime=self.runtime, version=self.version,
+            command=["python -m lessons", "run", *plan.argv], started=_now(self.started), finished=_now(),
+            elapsed_s=round(time.time() - self.started, 3))
 
 
 class OutputFailed(Exception):
