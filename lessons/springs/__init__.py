@@ -2,15 +2,16 @@
 conservation, stiffness from the speed of sound, a hanging rod.
 
 Physics lives in the engine (:mod:`engine.energies.springs`, :mod:`engine.model`,
-:mod:`engine.integrators`, :class:`engine.scenes.Rod`, :mod:`engine.statics`); :mod:`.stages`
-builds the scenes, runs them and measures, and ``narrative.md`` narrates each stage.
+:mod:`engine.integrators`, :class:`engine.scenes.Rod`, :mod:`engine.statics`); :mod:`.scene`
+builds the scenes, draws them and estimates each stage's cost, :mod:`.stages` runs them and
+measures, and ``narrative.md`` narrates each stage.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 from .._framework import Lesson, narrated_stages, param
-from . import stages
+from . import scene, stages
 
 
 @dataclass
@@ -36,7 +37,7 @@ class SpringsConfig:
                               "frame's momentum checks)", ge=1)
 
     def validate(self):
-        stages.check_work(self)
+        scene.check_work(self)
 
 
 LESSON = Lesson(

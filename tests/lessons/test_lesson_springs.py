@@ -317,14 +317,14 @@ def test_backward_euler_with_cholesky_on_one_chain():
     """--solver cholesky reaches the scheme's prediction too (one chain: the cost is in the factorisations)."""
     from lessons._framework import StageContext, Stepping
     from lessons.app.recorder import NullRecorder
-    from lessons.springs import stages as springs
+    from lessons.springs import scene, stages as springs
     cfg = SpringsConfig(**SMALL)
     ctx = StageContext(LESSON, cfg, NullRecorder(), 4, quiet=True,
                        stepping=Stepping(integrator="backward-euler", solver="cholesky"))
     h = 1.0 / cfg.wave_segments
-    Ls = springs._chain_lengths("graded", h)
+    Ls = scene.chain_lengths("graded", h)
     k = np.full(Ls.size, 100.0)
-    model, p = springs._chain_model(Ls, k, 1.0)
+    model, p = scene.chain_model(Ls, k, 1.0)
     v, v_pred = springs._pulse_speed(ctx, "graded", model, p, 10.0, 30 * h, k, 1.0)
     assert ctx.integrators_used == ["graded: backward-euler (cholesky, tol 1e-08)"]
     assert abs(v / v_pred - 1) < 1e-5 and 9.98 < v_pred < 10.0

@@ -99,7 +99,7 @@ def check_plan(lesson_id: str, cfg) -> None:
         for stage in (2, 3, 4):
             assert 0 <= S.stage_work(cfg, stage) <= S.WORK_BUDGET
     elif lesson_id == "springs":
-        from lessons.springs import stages as S
+        from lessons.springs import scene as S
         plan = S.stage2_plan(cfg)
         assert plan["longest"] <= S.MAX_LAUNCH_STEPS and plan["seconds"] <= WORK_BUDGET_S
         assert all(math.isfinite(dt) and dt > 0 for dt in plan["dt"].values())
@@ -166,7 +166,7 @@ def test_springs_dt_fraction_too_small_for_one_launch_is_refused():
     exc = up_front(LESSONS["springs"], dt_fraction=1e-7)
     assert isinstance(exc, ParameterError) and "stage 2 would take" in str(exc)
     # past one launch's 2^31 - 1 steps, even where the budget would allow it
-    from lessons.springs import stages as S
+    from lessons.springs import scene as S
     plan = S.stage2_plan(LESSONS["springs"].config(dt_fraction=1e-7))
     assert plan["longest"] > S.MAX_LAUNCH_STEPS
 
@@ -201,13 +201,13 @@ def test_springs_hanging_rod_of_many_nodes_converges(nodes):
 
 def test_springs_round_off_floor_scales_the_hanging_tolerance():
     from engine import runtime
-    from lessons.springs import stages as S
+    from lessons.springs import scene, stages as S
     runtime.init()
     cfg = LESSONS["springs"].config()
-    model, _ = S._hanging_rod(cfg, "uniform")
+    model, _ = scene.hanging_rod(cfg, "uniform")
     assert 2 * S.force_roundoff(model, 0.05) < S.HANG_TOL  # the defaults keep 1e-10
     cfg = LESSONS["springs"].config(hang_nodes=5000)
-    model, _ = S._hanging_rod(cfg, "uniform")
+    model, _ = scene.hanging_rod(cfg, "uniform")
     assert S.HANG_TOL < 2 * S.force_roundoff(model, 0.05) < S.HANG_TOL_MAX  # 5000 nodes: ~1e-7
 
 
@@ -266,7 +266,7 @@ def test_long_runs_are_estimated_and_allowed(lesson_id, kw, within):
         from lessons.rod_waves import stages as S
         worst = max(S.stage_work(cfg, i) for i in (2, 3, 4))
     elif lesson_id == "springs":
-        from lessons.springs import stages as S
+        from lessons.springs import scene as S
         worst = S.stage2_plan(cfg)["seconds"]
     else:
         from lessons.explicit_vs_implicit import stages as S
