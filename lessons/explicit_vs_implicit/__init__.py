@@ -4,15 +4,15 @@ unconditional stability, what it costs in accuracy and what it buys in speed.
 The lecture notes remark that implicit methods pass information across the whole mesh in a
 single step, so the CFL limit does not bind them. Physics lives in the engine (:mod:`engine.integrators.explicit`,
 :mod:`engine.integrators.implicit`, :mod:`engine.solvers`, :mod:`engine.scenes`,
-:mod:`engine.statics`); :mod:`.stages` builds the hanging cloth, runs it and measures, and
-``narrative.md`` narrates each stage.
+:mod:`engine.statics`); :mod:`.scene` builds the hanging cloth, draws it and estimates each
+stage's time, :mod:`.stages` runs it and measures, and ``narrative.md`` narrates each stage.
 """
 from dataclasses import dataclass
 
 from engine.errors import ParameterError
 
 from .._framework import Lesson, narrated_stages, param
-from . import stages
+from . import scene, stages
 
 
 @dataclass
@@ -58,12 +58,12 @@ class ExplicitImplicitConfig:
         if self.E_stiff <= self.E_soft:
             raise ParameterError(f"--E-stiff must be larger than --E-soft (got {self.E_stiff} <= {self.E_soft})")
         sag = self.rho * 9.81 / self.E  # the strain of the 1 m cloth's weight, rho g L / E
-        if sag > stages.MAX_WEIGHT_STRAIN:
+        if sag > scene.MAX_WEIGHT_STRAIN:
             raise ParameterError(
                 f"--E {self.E:g} with --rho {self.rho:g}: the cloth's own weight would stretch it by rho g L / E = "
-                f"{sag:.2g}, over {stages.MAX_WEIGHT_STRAIN:g}; the lesson's limits and modes are taken about a hanging "
-                f"cloth that barely stretches: use --E >= {self.rho * 9.81 / stages.MAX_WEIGHT_STRAIN:.3g} N/m")
-        stages.check_work(self)
+                f"{sag:.2g}, over {scene.MAX_WEIGHT_STRAIN:g}; the lesson's limits and modes are taken about a hanging "
+                f"cloth that barely stretches: use --E >= {self.rho * 9.81 / scene.MAX_WEIGHT_STRAIN:.3g} N/m")
+        scene.check_work(self)
 
 
 LESSON = Lesson(

@@ -108,7 +108,7 @@ def check_plan(lesson_id: str, cfg) -> None:
         from lessons.area_springs import stages as S
         assert all(S.stage_seconds(cfg, i) <= WORK_BUDGET_S for i in range(1, 6))
     else:
-        from lessons.explicit_vs_implicit import stages as S
+        from lessons.explicit_vs_implicit import scene as S
         assert math.isfinite(S.limit_estimate(cfg.n, cfg.E, cfg.rho, cfg.B))
         assert all(S.stage_seconds(cfg, i) <= WORK_BUDGET_S for i in (1, 2))
 
@@ -238,6 +238,7 @@ def test_evi_unsettled_cloth_says_why():
     from engine import runtime
     from engine.scenes import cloth
     from lessons.explicit_vs_implicit import stages as S
+    from lessons.explicit_vs_implicit.scene import stage_seconds
     runtime.init()
     cfg = LESSONS["explicit-vs-implicit"].config(n=6)
     scene = cloth(cfg.n, 1.0, E=cfg.E, rho=cfg.rho, B=cfg.B)
@@ -248,7 +249,7 @@ def test_evi_unsettled_cloth_says_why():
     assert S._unsettled_reason(ctx, cl, w1, 1e-3, 10, 10.0, 0.5).startswith("numerical damping too weak")
     assert S._unsettled_reason(ctx, cl, w1, 1e-3, 10, 10.0, 1e-4) == ""  # settled: nothing to explain
     assert S._unsettled_reason(ctx, cl, w1, 10.0, 10**6, 10.0, 0.5) == ""  # theory says settled: no excuse
-    assert S.stage_seconds(LESSONS["explicit-vs-implicit"].config(n=40), 1) < WORK_BUDGET_S
+    assert stage_seconds(LESSONS["explicit-vs-implicit"].config(n=40), 1) < WORK_BUDGET_S
 
 
 # ------------------------------------------------------------------------- regressions: long and silent
@@ -269,7 +270,7 @@ def test_long_runs_are_estimated_and_allowed(lesson_id, kw, within):
         from lessons.springs import scene as S
         worst = S.stage2_plan(cfg)["seconds"]
     else:
-        from lessons.explicit_vs_implicit import stages as S
+        from lessons.explicit_vs_implicit import scene as S
         worst = S.stage_seconds(cfg, 1)
     assert within[0] < worst < within[1]
 
