@@ -1,7 +1,8 @@
 """Lesson ``rod-waves``: the 1D elastic rod, its sound waves and the CFL limit.
 
-Physics lives in the engine (the rod is :class:`engine.scenes.Rod`, a chain Model); :mod:`.stages` builds the scenes, runs them and measures,
-and ``narrative.md`` narrates each stage.
+Physics lives in the engine (the rod is :class:`engine.scenes.Rod`, a chain Model); :mod:`.scene` builds
+the scenes, draws their runs and estimates each stage's cost, :mod:`.stages` runs them and measures, and
+``narrative.md`` narrates each stage.
 """
 from __future__ import annotations
 
@@ -10,8 +11,8 @@ from dataclasses import dataclass
 from engine.errors import ParameterError
 
 from .._framework import Lesson, narrated_stages, param
-from . import stages
-from .stages import simulate  # the rod's chunked runner (tests/lessons/test_blowups.py drives it directly)
+from . import scene, stages
+from .scene import simulate  # the rod's chunked runner (tests/lessons/test_blowups.py drives it directly)
 
 
 @dataclass
@@ -30,12 +31,12 @@ class RodWavesConfig:
     cfl_steps: int = param(10_000, "steps a run must survive to count as stable in stage 3", ge=100, le=10**7)
     record_every: int = param(20, "observe the scene runs every k-th step (the steps between "
                              "observations; the recording draws its own frames, about 200 per run, whatever k is; "
-                             f"stage 2's speed fits need at least {stages.MIN_FIT_POINTS} observations while "
+                             f"stage 2's speed fits need at least {scene.MIN_FIT_POINTS} observations while "
                              "the pulse crosses the middle of the rod)", ge=1)
 
     def validate(self):
         h = 1.0 / (self.nodes - 1)
-        sigma = stages.pulse_width(self, h)
+        sigma = scene.pulse_width(self, h)
         if sigma > 0.05 and self.width is not None:
             raise ParameterError(
                 f"--width must be <= {0.05 / h:.3g} node spacings for --nodes {self.nodes} "
@@ -44,14 +45,14 @@ class RodWavesConfig:
             raise ParameterError(
                 f"--nodes {self.nodes}: the default pulse width, 10 node spacings = {sigma:g} m, is more than 0.05 m "
                 f"(the pulse must be narrow next to the 1 m rod); use --nodes >= 201 or --width <= {0.05 / h:.3g}")
-        stages.check_work(self)  # first: a tiny --cfl would make the fit windows below astronomically long
-        fewest = stages.fewest_fit_points(self)
-        if fewest < stages.MIN_FIT_POINTS:
+        scene.check_work(self)  # first: a tiny --cfl would make the fit windows below astronomically long
+        fewest = scene.fewest_fit_points(self)
+        if fewest < scene.MIN_FIT_POINTS:
             raise ParameterError(
                 f"--record-every {self.record_every} leaves {fewest} observation(s) in a speed fit of stage 2 "
-                f"(the pulse at nu = 1 crosses the middle of the rod in {stages.fit_window_steps(self)} steps at "
-                f"--nodes {self.nodes}); a fit needs at least {stages.MIN_FIT_POINTS}: use --record-every <= "
-                f"{stages.largest_record_every(self)}")
+                f"(the pulse at nu = 1 crosses the middle of the rod in {scene.fit_window_steps(self)} steps at "
+                f"--nodes {self.nodes}); a fit needs at least {scene.MIN_FIT_POINTS}: use --record-every <= "
+                f"{scene.largest_record_every(self)}")
 
 
 LESSON = Lesson(

@@ -1,4 +1,6 @@
-"""The stages of ``rod-waves`` (their narratives are in narrative.md) and the rod's scenes and runs.
+"""The stages of ``rod-waves`` (their narratives are in narrative.md) and the runs and measurements
+only they make; the rods they build, how their runs are drawn and what each stage costs are in
+scene.py.
 
 Runs are either *scene* runs (stages 2 and 4: pulses, d'Alembert, reflection, smooth E), which use
 ``--integrator`` (symplectic Euler by default), or *fixed* runs (stage 3), whose claims are about
@@ -19,117 +21,103 @@ from engine.integrators.loop import run as run_loop
 from engine.integrators.stepper import Stepper
 from engine.scenes import Rod
 
-from .._budget import ANNOUNCE_S, WORK_BUDGET_S, refuse_over_budget, time_text
 from .._framework import Experiment, check_interrupt
-from .._measure import central_gradient, expect, modal_tracks, observation_steps, rod_node_strain, track_peaks
-from .._scene import progress_bar, simulate as scene_simulate
-from lessons.app.blueprint import RunView
+from .._measure import central_gradient, expect, modal_tracks, observation_steps, track_peaks
+from .._scene import progress_bar
+from .scene import (announce_work, gaussian, gaussian_slope, method_label, pulse_width, simulate, uniform_rod,
+                    varying_rod)
 
-# ------------------------------------------------------------------ the parameters' limits
 
-DEFAULT_WIDTH = 0.01       # m: the pulse width sigma unless --width gives one (in node spacings) ...
-DEFAULT_SPACINGS = 10      # ... or this many node spacings on grids coarser than DEFAULT_WIDTH / 10
-MIN_FIT_POINTS = 3         # observations a speed fit of stage 2 needs (a line through at least three peaks)
+SYMPLECTIC = ("symplectic-euler", "velocity-verlet")  # no damping: the undamped theory applies
 MODAL_MAX_NODES = 5001     # the modal reference of a damped scheme holds all n^2 mode shapes (200 MB here)
-WORK_RATE = 1.2e8          # node-steps per second of the rod's kernel on the reference 2-thread CPU
-WORK_BUDGET = WORK_BUDGET_S * WORK_RATE  # node-steps a stage may take (the lessons' hour); more is refused
-OBSERVATION_WORK = 10.0    # an observation (copy + peak search) costs about this many node-steps per node ...
-CHUNK_WORK = 2e5           # ... on top of a launch's fixed cost (about 1.7 ms: its energies copied out, Python)
 QUIET_CHUNK = 20_000_000   # node-steps per launch of stage 3's unrecorded runs (a progress update each)
 
 
-def pulse_width(cfg, h: float) -> float:
-    """The pulse width sigma (m): ``--width`` node spacings, or DEFAULT_WIDTH, or DEFAULT_SPACINGS node
-    spacings where that is wider (a pulse narrower than about 5 spacings disperses measurably). A width
-    fixed in metres, not in spacings, is what converges: the pulse crosses the same 0.5 m, which is more
-    spacings on a finer grid, and a pulse of a fixed count of spacings disperses over each of them."""
-    if cfg.width is not None:
-        return cfg.width * h
-    return max(DEFAULT_WIDTH, DEFAULT_SPACINGS * h)
+# ------------------------------------------------------------------------- stage 1
+
+def stage_energy(ctx):
+    cfg = ctx.cfg
+    p = np.linspace(0.0, 1.0, cfg.nodes)
+    rod = varying_rod(cfg, p)
+    rng = np.random.default_rng(1)
+    u = 0.01 * np.sin(3 * np.pi * p) + 1e-4 * rng.standard_normal(cfg.nodes)
+    x = p + u
+    f = rod.forces(x)
+    idx = np.linspace(0, cfg.nodes - 1, 41).astype(int)  # central finite differences of W on these nodes
+    fd = -central_gradient(rod.energy, x, 1e-6, at=idx)
+    rest_force = np.max(np.abs(rod.forces(p.copy()))) / cfg.E
+    s = 0.01  # W of a uniform stretch is 1/2 E s^2 L (a closed form to compare the sum with)
+    W_stretch = Rod(p, cfg.E, cfg.rho).energy((1 + s) * p)
+    # the two sides weigh the node's spacings differently (lumped mass vs segment length), and the spacings
+    # h_j = p_j+1 - p_j are known only to eps max|p| / h relative: the check is good to that, not to a fixed 1e-12
+    stencil_tol = max(1e-12, 4 * np.finfo(np.float64).eps * float(np.abs(x).max()) / float(rod.h.min()))
+    return [
+        Experiment("force/mass equals the PDE's finite-difference stencil (max rel. difference)",
+                   0.0, _stencil_error(rod, x, f), stencil_tol, "abs", id="force-is-pde-stencil"),
+        Experiment("force equals -dW/dx by central differences (rel. error)", 0.0,
+                   np.linalg.norm(fd - f[idx]) / np.linalg.norm(f[idx]), 1e-6, "abs", id="force-is-energy-gradient"),
+        Experiment("no force on the unstretched rod (max |f| / E)", 0.0, rest_force, 1e-14, "abs",
+                   id="no-force-at-rest"),
+        Experiment("uniform 1% stretch stores W = 1/2 E s^2 L", 0.5 * cfg.E * s * s, W_stretch, 1e-9, "rel", "J",
+                   id="uniform-stretch-energy"),
+    ]
 
 
-def _count_between(n_steps: int, every: int, lo: float, hi: float) -> int:
-    """How many observation steps (0, every, 2 every, ..., n_steps) lie strictly between lo and hi."""
-    every = max(int(every), 1)
-    first = max(math.floor(lo / every) + 1, 0)  # index of the first multiple of every above lo
-    last = (n_steps - 1) // every  # ... and of the last one below n_steps
-    if math.isfinite(hi):
-        last = min(last, math.ceil(hi / every) - 1)  # ... below hi
-    return max(last - first + 1, 0) + (1 if lo < n_steps < hi else 0)
+def _stencil_error(rod: Rod, x, f) -> float:
+    """Max |force/mass - the PDE's centred stencil| / max |stencil|, the stencil written from the
+    formula (1/rho) d/dp(E (dx/dp - 1)), not from the engine."""
+    E, h = rod.E, rod.h
+    a = f / rod.mass
+    sigma = (x[1:] - x[:-1]) / h - 1.0
+    rho_node = 0.5 * (rod.rho[1:] + rod.rho[:-1])
+    stencil = (E[1:] * sigma[1:] - E[:-1] * sigma[:-1]) / h[1:] / rho_node
+    return np.max(np.abs(a[1:-1] - stencil)) / np.max(np.abs(stencil))
 
 
-def _fit_windows(cfg):
-    """(n_steps, window lo, window hi) in steps of every speed fit of stage 2 (see _pulse_speed and
-    _dalembert), with h = 1/(nodes - 1)."""
-    h = 1.0 / (cfg.nodes - 1)
-    nu_left = min(cfg.cfl, 1.0)
-    out = [(int(round(0.5 / (nu * h))), 0.05 / (nu * h), 0.45 / (nu * h)) for nu in (0.25, 0.5, 1.0, nu_left)]
-    n = int(round(0.4 / (nu_left * h)))
-    return out + [(n, 0.1 / (nu_left * h), math.inf)]
+# ------------------------------------------------------------------ the scene runs of stages 2 and 4
+
+def scene_method(ctx) -> str:
+    """The integrator of the scene runs: symplectic Euler unless ``--integrator`` chooses another."""
+    return ctx.integrator_name("symplectic-euler")
 
 
-def fewest_fit_points(cfg, every: int | None = None) -> int:
-    """The fewest observations any speed fit of stage 2 gets at --record-every ``every``."""
-    every = cfg.record_every if every is None else every
-    return min(_count_between(n, every, lo, hi) for n, lo, hi in _fit_windows(cfg))
+def run_scene(ctx, name: str, rod: Rod, u0, v0, dt: float, n_steps: int, method: str, regions=(),
+              every: int | None = None, label: str | None = None, interface: float | None = None):
+    """A scene run from displacement u0 and velocity v0 under ``method``, following the peaks of
+    ``regions`` (see :func:`lessons._measure.track_peaks`). The energy may not exceed 10x its start
+    (forward Euler is stopped there and reported at the step). Returns ((tracks, u_end), predicted):
+    for a non-symplectic method ``predicted`` is (tracks, u_end) measured the same way, at the same
+    steps, on the scheme's modal prediction; otherwise None."""
+    every = every or ctx.cfg.record_every
+    st = rod.new_state(u0, v0)
+    E0 = rod.energy(st.x) + rod.kinetic(st)
+    tracks, obs = track_peaks(rod.p, regions)
+    simulate(ctx, name, rod, st, dt, n_steps, method, energy_bound=10 * E0, observe=obs, every=every, label=label,
+             interface=interface)
+    result = (tracks, st.displacement(rod))
+    if method in SYMPLECTIC:
+        return result, None
+    steps = observation_steps(n_steps, every) if regions else [n_steps]
+    return result, modal_tracks(rod, u0, v0, dt, method, steps, regions)
 
 
-def fit_window_steps(cfg) -> int:
-    """Steps of the shortest fit window (the pulse at nu = 1 crossing 0.05..0.45 m)."""
-    return int(0.4 * (cfg.nodes - 1))
+def fitted_speed(track, t_min, t_max):
+    """The peak's speed fitted over t_min < t < t_max."""
+    t, xp, _ = np.array(track).T
+    keep = (t > t_min) & (t < t_max)
+    return fit_slope(t[keep], xp[keep])
 
 
-def largest_record_every(cfg) -> int:
-    """The largest --record-every that still gives every speed fit MIN_FIT_POINTS observations."""
-    lo, hi = 1, max(int(cfg.record_every), 1)
-    while lo < hi:
-        mid = (lo + hi + 1) // 2
-        if fewest_fit_points(cfg, mid) >= MIN_FIT_POINTS:
-            lo = mid
-        else:
-            hi = mid - 1
-    return lo
-
-
-def stage_work(cfg, stage: int) -> float:
-    """Node-steps stage ``stage`` takes (an estimate for the up-front budget and the stage's
-    progress line; observations counted as OBSERVATION_WORK node-steps per node)."""
-    n = cfg.nodes
-    h = 1.0 / (n - 1)
-    obs = lambda steps, every: steps / max(every, 1) * (OBSERVATION_WORK + CHUNK_WORK / n)
-    if stage == 2:  # (floats: a tiny --cfl gives astronomically many steps, refused, not an overflow)
-        per_nu = 1.0 / max(min(cfg.cfl, 1.0) * h, 1e-300)
-        steps = [0.5 / (0.25 * h), 0.5 / (0.5 * h), 0.5 / h, 0.5 * per_nu, 0.4 * per_nu]
-        return n * sum(st + obs(st, cfg.record_every) for st in steps)
-    if stage == 3:  # two recorded runs (launches of max(k, 100) steps), up to 14 bisection runs, backward Euler
-        recorded = 2 * cfg.cfl_steps / max(cfg.record_every, 100) * CHUNK_WORK
-        return n * (16 * cfg.cfl_steps + 3000 + obs(1000, cfg.record_every)) + recorded
-    if stage == 4:  # three interface runs (about 1.5/h, 0.74/h, 0.74/h steps) and the smooth rod (2.1/h)
-        return n * (3.0 / h + obs(3.0 / h, cfg.record_every) + 2.1 / h + obs(2.1 / h, 10))
-    return 0.0
-
-
-def work_text(work: float) -> str:
-    if not math.isfinite(work):
-        return time_text(work)
-    return f"about {work:.2g} node-steps, ~{time_text(work / WORK_RATE)} at {WORK_RATE:.2g} node-steps/s"
-
-
-def check_work(cfg) -> None:
-    """Refuse a configuration any of whose stages would take more than the lessons' budget."""
-    for stage, flags in ((2, "--nodes, --cfl, --record-every"), (3, "--cfl-steps, --nodes"),
-                         (4, "--nodes, --record-every")):
-        work = stage_work(cfg, stage)
-        refuse_over_budget(stage, work / WORK_RATE, flags,
-                           f"that is {work:.2g} node-steps at {WORK_RATE:.2g} node-steps/s; use smaller values")
-
-
-def announce_work(ctx, stage: int) -> None:
-    """Say up front what a stage expected to take more than ANNOUNCE_S costs."""
-    work = stage_work(ctx.cfg, stage)
-    if work / WORK_RATE > ANNOUNCE_S:
-        ctx.progress(f"this stage steps the rod for {work_text(work)} (a progress bar follows each run on a "
-                     f"terminal)")
+def modal_reference_refused(ctx, method: str, stage: int) -> list | None:
+    """Under backward Euler the scene experiments compare with the scheme's modal prediction, which
+    holds every mode shape (nodes^2 numbers): past MODAL_MAX_NODES the stage is not run and says so."""
+    n = ctx.cfg.nodes
+    if method != "backward-euler" or n <= MODAL_MAX_NODES:
+        return None
+    return [Experiment("backward Euler's modal prediction can be computed for this rod", MODAL_MAX_NODES, n, 0, "<=",
+                       "nodes", id=f"modal-reference-stage{stage}",
+                       reason=f"the prediction holds all {n}^2 mode shapes ({8 * n * n / 2 ** 30:.2g} GiB); "
+                              f"use --nodes <= {MODAL_MAX_NODES} with --integrator backward-euler")]
 
 
 def dispersion_speed_error(nu: float, w: float) -> float:
@@ -161,149 +149,6 @@ def spread_reason(nu: float, h: float, sigma: float, distance: float) -> str:
     return (f"grid dispersion: over its {distance:g} m the pulse ({sigma / h:.3g} node spacings wide) spreads by "
             f"(beta t)^(1/3) = {q:.2f} sigma (beta = c h^2 (1 - nu^2)/24), which lowers and shifts its peak; use a "
             "wider --width or more --nodes")
-
-
-def modal_reference_refused(ctx, method: str, stage: int) -> list | None:
-    """Under backward Euler the scene experiments compare with the scheme's modal prediction, which
-    holds every mode shape (nodes^2 numbers): past MODAL_MAX_NODES the stage is not run and says so."""
-    n = ctx.cfg.nodes
-    if method != "backward-euler" or n <= MODAL_MAX_NODES:
-        return None
-    return [Experiment("backward Euler's modal prediction can be computed for this rod", MODAL_MAX_NODES, n, 0, "<=",
-                       "nodes", id=f"modal-reference-stage{stage}",
-                       reason=f"the prediction holds all {n}^2 mode shapes ({8 * n * n / 2 ** 30:.2g} GiB); "
-                              f"use --nodes <= {MODAL_MAX_NODES} with --integrator backward-euler")]
-
-# ------------------------------------------------------------------ scenes and runs
-
-
-def gaussian(p, center, sigma, amplitude):
-    return amplitude * np.exp(-0.5 * ((p - center) / sigma) ** 2)
-
-
-def gaussian_slope(p, center, sigma, amplitude):
-    return -(p - center) / sigma ** 2 * gaussian(p, center, sigma, amplitude)
-
-
-SYMPLECTIC = ("symplectic-euler", "velocity-verlet")  # no damping: the undamped theory applies
-
-
-def scene_method(ctx) -> str:
-    """The integrator of the scene runs: symplectic Euler unless ``--integrator`` chooses another."""
-    return ctx.integrator_name("symplectic-euler")
-
-
-def method_label(method: str) -> str:
-    """How a run's integrator is noted. The rod's backward Euler is one exact tridiagonal (Thomas)
-    solve per step: ``--solver/--tol`` do not apply to it."""
-    return "backward-euler (tridiagonal, exact)" if method == "backward-euler" else method
-
-
-def simulate(ctx, name: str, rod: Rod, state, dt: float, n_steps: int, method: str = "symplectic-euler",
-             energy_bound: float | None = None, observe=None, every: int | None = None, fixed: bool = False,
-             label: str | None = None, energy: str = "split", interface: float | None = None):
-    """Run ``n_steps`` of ``method`` (already chosen: see :func:`scene_method`) through the one
-    lesson runner (``lessons._scene.simulate``: the rod's many-steps kernel, one launch per chunk of ``every``
-    steps), drawing the rod and calling ``observe(step, t, u)`` after each chunk (and at step 0).
-    Returns (kinetic, potential) per step. A blow-up is drawn, marked in the recording and re-raised.
-    The run's view is named ``label`` and seen from above (the rod along x, its displacement
-    drawn along y, 0.1 m for the pulse amplitude), with a grey line at ``interface`` if given; its
-    energy plot is ``energy`` (RunView)."""
-    gain = 0.1 / max(ctx.cfg.amplitude, 1e-300)
-
-    marks = []
-
-    def log(rec, st):
-        x = st.positions()
-        rec.rod(x, rod.p, rod_node_strain(x, rod.p), gain=gain)
-        if interface is not None and not marks:  # once: it stays drawn
-            marks.append(True)
-            rec.line_strips("interface", [[[interface, -0.04, 0.0], [interface, 0.12, 0.0]]],
-                            colors=[[150, 150, 150]], radii=0.002)
-
-    on_state = (lambda step, st: observe(step, step * dt, st.displacement(rod))) if observe else None
-    _, K, W = scene_simulate(ctx, name, rod, state, dt, n_steps, method, every or ctx.cfg.record_every,
-                             energy_bound, observe=on_state, log=log, fixed=fixed, chosen=True,
-                             label=method_label(method), view=RunView(label=label or name, camera="top", energy=energy))
-    return K, W
-
-
-def uniform_rod(cfg, pinned=()) -> Rod:
-    return Rod.uniform(cfg.nodes, 1.0, cfg.E, cfg.rho, pinned)
-
-
-def run_scene(ctx, name: str, rod: Rod, u0, v0, dt: float, n_steps: int, method: str, regions=(),
-              every: int | None = None, label: str | None = None, interface: float | None = None):
-    """A scene run from displacement u0 and velocity v0 under ``method``, following the peaks of
-    ``regions`` (see :func:`lessons._measure.track_peaks`). The energy may not exceed 10x its start
-    (forward Euler is stopped there and reported at the step). Returns ((tracks, u_end), predicted):
-    for a non-symplectic method ``predicted`` is (tracks, u_end) measured the same way, at the same
-    steps, on the scheme's modal prediction; otherwise None."""
-    every = every or ctx.cfg.record_every
-    st = rod.new_state(u0, v0)
-    E0 = rod.energy(st.x) + rod.kinetic(st)
-    tracks, obs = track_peaks(rod.p, regions)
-    simulate(ctx, name, rod, st, dt, n_steps, method, energy_bound=10 * E0, observe=obs, every=every, label=label,
-             interface=interface)
-    result = (tracks, st.displacement(rod))
-    if method in SYMPLECTIC:
-        return result, None
-    steps = observation_steps(n_steps, every) if regions else [n_steps]
-    return result, modal_tracks(rod, u0, v0, dt, method, steps, regions)
-
-
-def fitted_speed(track, t_min, t_max):
-    """The peak's speed fitted over t_min < t < t_max."""
-    t, xp, _ = np.array(track).T
-    keep = (t > t_min) & (t < t_max)
-    return fit_slope(t[keep], xp[keep])
-
-
-# ------------------------------------------------------------------------- stage 1
-
-def stage_energy(ctx):
-    cfg = ctx.cfg
-    p = np.linspace(0.0, 1.0, cfg.nodes)
-    rod = _varying_rod(cfg, p)
-    rng = np.random.default_rng(1)
-    u = 0.01 * np.sin(3 * np.pi * p) + 1e-4 * rng.standard_normal(cfg.nodes)
-    x = p + u
-    f = rod.forces(x)
-    idx = np.linspace(0, cfg.nodes - 1, 41).astype(int)  # central finite differences of W on these nodes
-    fd = -central_gradient(rod.energy, x, 1e-6, at=idx)
-    rest_force = np.max(np.abs(rod.forces(p.copy()))) / cfg.E
-    s = 0.01  # W of a uniform stretch is 1/2 E s^2 L (a closed form to compare the sum with)
-    W_stretch = Rod(p, cfg.E, cfg.rho).energy((1 + s) * p)
-    # the two sides weigh the node's spacings differently (lumped mass vs segment length), and the spacings
-    # h_j = p_j+1 - p_j are known only to eps max|p| / h relative: the check is good to that, not to a fixed 1e-12
-    stencil_tol = max(1e-12, 4 * np.finfo(np.float64).eps * float(np.abs(x).max()) / float(rod.h.min()))
-    return [
-        Experiment("force/mass equals the PDE's finite-difference stencil (max rel. difference)",
-                   0.0, _stencil_error(rod, x, f), stencil_tol, "abs", id="force-is-pde-stencil"),
-        Experiment("force equals -dW/dx by central differences (rel. error)", 0.0,
-                   np.linalg.norm(fd - f[idx]) / np.linalg.norm(f[idx]), 1e-6, "abs", id="force-is-energy-gradient"),
-        Experiment("no force on the unstretched rod (max |f| / E)", 0.0, rest_force, 1e-14, "abs",
-                   id="no-force-at-rest"),
-        Experiment("uniform 1% stretch stores W = 1/2 E s^2 L", 0.5 * cfg.E * s * s, W_stretch, 1e-9, "rel", "J",
-                   id="uniform-stretch-energy"),
-    ]
-
-
-def _varying_rod(cfg, p) -> Rod:
-    """A rod whose stiffness and density vary along it."""
-    mid = 0.5 * (p[1:] + p[:-1])
-    return Rod(p, cfg.E * (1.0 + 0.5 * np.sin(2 * np.pi * mid)), cfg.rho * (1.0 + 0.3 * np.cos(2 * np.pi * mid)))
-
-
-def _stencil_error(rod: Rod, x, f) -> float:
-    """Max |force/mass - the PDE's centred stencil| / max |stencil|, the stencil written from the
-    formula (1/rho) d/dp(E (dx/dp - 1)), not from the engine."""
-    E, h = rod.E, rod.h
-    a = f / rod.mass
-    sigma = (x[1:] - x[:-1]) / h - 1.0
-    rho_node = 0.5 * (rod.rho[1:] + rod.rho[:-1])
-    stencil = (E[1:] * sigma[1:] - E[:-1] * sigma[:-1]) / h[1:] / rho_node
-    return np.max(np.abs(a[1:-1] - stencil)) / np.max(np.abs(stencil))
 
 
 # ------------------------------------------------------------------------- stage 2

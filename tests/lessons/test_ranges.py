@@ -91,7 +91,7 @@ def check_plan(lesson_id: str, cfg) -> None:
     """The set-up an accepted configuration gets, computed before any stage runs: finite estimates
     within the budget, and the pieces the stages are sized with."""
     if lesson_id == "rod-waves":
-        from lessons.rod_waves import stages as S
+        from lessons.rod_waves import scene as S
         h = 1.0 / (cfg.nodes - 1)
         sigma = S.pulse_width(cfg, h)
         assert 2 * h * (1 - 1e-9) <= sigma <= 0.05
@@ -264,7 +264,7 @@ def test_long_runs_are_estimated_and_allowed(lesson_id, kw, within):
     cfg = up_front(LESSONS[lesson_id], **kw)
     assert not isinstance(cfg, ParameterError), cfg
     if lesson_id == "rod-waves":
-        from lessons.rod_waves import stages as S
+        from lessons.rod_waves import scene as S
         worst = max(S.stage_work(cfg, i) for i in (2, 3, 4))
     elif lesson_id == "springs":
         from lessons.springs import scene as S
