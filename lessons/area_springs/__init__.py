@@ -2,8 +2,9 @@
 
 The notes' multi-dimensional spring potential W_ij = 1/2 E (|x_i - x_j|/L_ij - 1)^2 A_ij, with
 A_ij = engine.mesh.edge_measure (a third of each neighbouring triangle, a sixth of each
-neighbouring tet), is the engine's SpringEnergy with c_e = E A_e. :mod:`.stages` builds meshes,
-runs standing waves and a static stretch through the engine, measures speeds and moduli and
+neighbouring tet), is the engine's SpringEnergy with c_e = E A_e. :mod:`.scene` builds the meshes,
+runs one standing wave through the engine and draws it, and estimates each stage's time;
+:mod:`.stages` runs the standing waves and a static stretch, measures speeds and moduli and
 compares them with the long-wavelength theory of engine.waves (Cauchy-Born sum and Christoffel
 equation); ``narrative.md`` narrates each stage.
 """
@@ -14,7 +15,7 @@ from dataclasses import dataclass
 from engine.errors import ParameterError
 
 from .._framework import Lesson, narrated_stages, param
-from . import stages
+from . import scene, stages
 
 
 @dataclass
@@ -39,7 +40,7 @@ def _validate(cfg):
     if cfg.strain * cfg.strip_cells > 1.0:
         raise ParameterError(f"--strain {cfg.strain:g} stretches the {cfg.strip_cells}-spacing strip by more "
                              "than a spacing; use a smaller strain")
-    stages.check_work(cfg)
+    scene.check_work(cfg)
 
 
 LESSON = Lesson(

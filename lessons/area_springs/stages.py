@@ -1,14 +1,13 @@
-"""The stages of ``area-springs`` (their narratives are in narrative.md), the meshes, the
-standing-wave runner and the drawings.
+"""The stages of ``area-springs`` (their narratives are in narrative.md) and what they measure;
+the meshes and models, the standing-wave run, the drawings and the estimates of each stage's time
+are in :mod:`.scene`.
 
 Every standing-wave run is a scene run: velocity Verlet unless ``--integrator`` chooses another
-integrator. Under backward Euler the step is chosen from the phase (see :func:`standing_wave`)
+integrator. Under backward Euler the step is chosen from the phase (see :func:`.scene.standing_wave`)
 and each wave stage adds the experiments of :func:`be_experiments` on the scheme's own damping.
 """
 from __future__ import annotations
 
-import contextlib
-import dataclasses
 import math
 
 import numpy as np
@@ -16,268 +15,19 @@ import numpy as np
 from engine import mesh as M
 from engine.model import Model
 from lessons.app.blueprint import RunView
-from engine.stability import stable_dt_estimate
-from engine.waves import (ModeProbe, cauchy_born_tensor, christoffel, max_speed, phase_frequency,
-                          relaxed_stiffness_2d, young_poisson)
+from engine.waves import cauchy_born_tensor, christoffel, max_speed, relaxed_stiffness_2d, young_poisson
 from engine.theory.schemes import backward_euler_damping_rate as be_damping_rate
 
-
-from .. import _budget
-from .._budget import refuse_over_budget
 from .._framework import Experiment
-from .._measure import damped_frequency, edge_strain, vertex_strain
-from .._scene import simulate
+from .scene import (RUN_PERIODS, STRIPS, announce, area_model, bulk_tensor, draw_strip, eq_sheet, sheet_drawer,
+                    solid_drawer, square_domain_cells, standing_wave, unit, wave_time)
 
-RUN_PERIODS = 0.3   # each standing-wave run lasts this fraction of a period (phase 0 -> 1.9 rad)
 BOX_LENGTH = 1.0    # m, the tet box of stage 1 and the cell size unit of stage 4
 SMALL_JITTER = 0.1  # a mild jitter whose affine prediction is still close
-BE_PHASE_STEP = 0.05  # w dt of the backward-Euler runs: phase lag 1 - arctan(w dt)/(w dt) = 8.3e-4
-BE_PHASE_LAG = 1e-3   # the bound on that lag, a tenth of the tightest tolerance (1e-2) of the speeds
+BE_PHASE_LAG = 1e-3   # the bound on the phase lag at scene.BE_PHASE_STEP (8.3e-4), a tenth of the tightest
+                      # tolerance (1e-2) of the speeds
 BE_DAMPING_TOL = 0.03  # fitted / predicted decay rate: the decay over a run is only ~5%, and the probe
                        # also sees a little of other motion (up to 1.7% measured on the regular meshes)
-DRAWN_AMPLITUDE = 1 / 24  # a drawn wave's displacement amplitude, in wavelengths (the true one: strain/(2 pi))
-
-
-# ------------------------------------------------------------------ the parameters' limits
-
-# seconds of each stage at the defaults on the reference 2-thread CPU (velocity Verlet), and how they scale:
-# the steps go as 1/cfl and as the wave's length in cells, the vertices as its square (sheets) or cube (boxes)
-STAGE_SECONDS = {1: 6.7, 2: 0.6, 3: 3.0, 4: 3.2, 5: 0.2}
-STRETCH_TOL = 1e-8      # the static stretch's residual
-
-
-def stage_seconds(cfg, stage: int) -> float:
-    """An estimate of stage ``stage``'s time on the reference CPU, scaled from its time at the defaults."""
-    d = type(cfg)()
-    slower = d.cfl / cfg.cfl
-    if stage == 1:  # three boxes of nc, 2 nc, 4 nc cells: vertices ~ nc^3, steps ~ nc
-        return STAGE_SECONDS[1] * (cfg.box_cells / d.box_cells) ** 4 * slower
-    if stage == 2:
-        return STAGE_SECONDS[2] * (cfg.wavelength / d.wavelength) ** 3 * slower
-    if stage == 3:  # 12 pattern runs and 2 per jittered mesh (jitter_seeds strong + 1 mild)
-        runs = (12 + 2 * (cfg.jitter_seeds + 1)) / (12 + 2 * (d.jitter_seeds + 1))
-        return STAGE_SECONDS[3] * (cfg.wavelength / d.wavelength) ** 3 * runs * slower
-    if stage == 4:  # boxes of a few wavelengths: vertices ~ box_wavelength^3, steps ~ box_wavelength
-        return STAGE_SECONDS[4] * (cfg.box_wavelength / d.box_wavelength) ** 4 * slower
-    return STAGE_SECONDS[5] * (cfg.strip_cells / d.strip_cells) ** 3
-
-
-def check_work(cfg) -> None:
-    """Refuse a configuration any of whose stages would take more than the lessons' budget."""
-    flags = {1: "--box-cells, --cfl", 2: "--wavelength, --cfl", 3: "--wavelength, --jitter-seeds, --cfl",
-             4: "--box-wavelength, --cfl", 5: "--strip-cells"}
-    for stage, what in flags.items():
-        refuse_over_budget(stage, stage_seconds(cfg, stage), what, "use a larger --cfl or smaller sizes")
-
-
-def announce(ctx, stage: int) -> None:
-    _budget.announce(ctx, stage_seconds(ctx.cfg, stage))
-
-
-def dispersion_reason(cells: float, tol: float = 2e-2) -> str:
-    """Why a wave speed measured on a lattice misses its long-wavelength value: a wave only ``cells``
-    lattice spacings long is slower by about (k a)^2/24 (k a = 2 pi / cells), the lattice's dispersion.
-    Empty when that is under a quarter of ``tol``."""
-    ka = 2 * math.pi / cells
-    slow = ka * ka / 24
-    if slow <= 0.25 * tol:
-        return ""
-    return (f"lattice dispersion: the wave is only {cells:.3g} spacings long, and a lattice's waves that short are "
-            f"slower than the long-wavelength (Cauchy-Born) value by about (k a)^2/24 = {slow:.2%}; use a longer "
-            "wavelength")
-
-
-def with_reason(exps: list, reason: str) -> list:
-    """``exps`` with ``reason`` given to every experiment that has none."""
-    for e in exps:
-        if not e.reason:
-            e.reason = reason
-    return exps
-
-
-# ------------------------------------------------------------------ meshes and runs
-
-def area_model(mesh3: M.Mesh, E: float, rho: float, pinned=None) -> tuple[Model, np.ndarray, np.ndarray]:
-    """Area/volume-scaled springs on a 3D-embedded mesh: (model, c_e = E A_e, lumped masses)."""
-    c = E * M.edge_measure(mesh3)
-    mass = M.lumped_masses(mesh3, rho)
-    return Model.from_springs(mesh3.vertices, mesh3.edges, c=c, mass=mass, pinned=pinned), c, mass
-
-
-def bulk_tensor(mesh: M.Mesh, c: np.ndarray, h: float) -> np.ndarray:
-    """Cauchy-Born C of the infinite lattice from the springs of 3 x 3 x 3 interior cells of a
-    tet box (midpoints in a window offset by h/4, so every spring class is counted once per
-    cell), for any coefficients c (also the constant-k springs)."""
-    X, e = mesh.vertices, mesh.edges
-    mid = 0.5 * (X[e[:, 0]] + X[e[:, 1]])
-    lo = X.min(axis=0) + 1.25 * h
-    inside = np.all((mid >= lo) & (mid < lo + 3 * h), axis=1)
-    return cauchy_born_tensor(X, e[inside], c[inside], 27 * h ** 3)
-
-
-def wave_steps(ctx, model: Model, k: float, c_guess: float) -> tuple[bool, float, int]:
-    """(implicit, dt, n_steps) of a standing-wave run (see :func:`standing_wave`)."""
-    implicit = ctx.integrator_name("velocity-verlet") == "backward-euler"
-    dt = BE_PHASE_STEP / (k * c_guess) if implicit else ctx.cfg.cfl * stable_dt_estimate(model)
-    n_steps = max(8, int(math.ceil(RUN_PERIODS * 2 * math.pi / (k * c_guess) / dt)))
-    return implicit, dt, n_steps
-
-
-def wave_time(ctx, model: Model, k: float, c_guess: float) -> float:
-    """The simulated time a standing-wave run covers (a span for the views of a stage's runs)."""
-    _, dt, n_steps = wave_steps(ctx, model, k, c_guess)
-    return n_steps * dt
-
-
-def displacement_component(direction, polarization) -> tuple[np.ndarray, str]:
-    """(unit 3-vector a, name) of the displacement component that shows a wave travelling along
-    ``direction`` n with ``polarization`` p: the axis p lies along if it is within 2 degrees of one;
-    else, for a (quasi-)P wave (p within 45 degrees of n), the component along n; else (a
-    (quasi-)S wave) the component of p across n. Named "u_x", "u_y", "u_z" when a is an axis, else
-    "u_n" (along n) or "u_t" (across n, along the polarization's transverse part)."""
-    def unit3(v):
-        w = np.zeros(3)
-        w[:len(v)] = np.asarray(v, dtype=np.float64)
-        return w / np.linalg.norm(w)
-    p, n = unit3(polarization), unit3(direction)
-    i = int(np.argmax(np.abs(p)))
-    if abs(p[i]) > math.cos(math.radians(2.0)):
-        a, name = np.eye(3)[i], None
-    elif abs(p @ n) >= math.cos(math.radians(45.0)):
-        a, name = n, "u_n"
-    else:
-        a, name = unit3(p - (p @ n) * n), "u_t"
-    j = int(np.argmax(np.abs(a)))
-    if abs(a[j]) > 1 - 1e-12:
-        a, name = np.eye(3)[j], f"u_{'xyz'[j]}"
-    return a, f"{name} (m)"
-
-
-def standing_wave(ctx, name: str, model: Model, mass: np.ndarray, direction, polarization, k: float,
-                  origin, region: np.ndarray, c_guess: float, draw=None, fits: list | None = None,
-                  view: RunView | None = None) -> float:
-    """Start u = A cos(k (X - origin).n) p from rest, run RUN_PERIODS of a period (sized with
-    ``c_guess``; the measurement does not use it) with velocity Verlet (or the integrator of
-    ``--integrator``), and return the measured phase speed w/k from the amplitude over ``region``
-    (engine.waves).
-
-    When recording, ``draw(rec, x, gain, axis, quantity, scale)`` (a drawer of this module) draws
-    the state with displacements magnified by ``gain`` (the amplitude drawn as DRAWN_AMPLITUDE of a
-    wavelength), coloured by the displacement component the wave carries (see
-    :func:`displacement_component`) on the fixed scale A, in the view ``view`` (without an energy
-    plot; the component's direction is added to its label when it is neither an axis nor the
-    direction of travel). A run without ``draw`` only measures.
-
-    Under backward Euler (stable at any step) the step is BE_PHASE_STEP/(k c_guess), whatever the
-    CFL limit, so that the scheme's phase lag 1 - arctan(w dt)/(w dt) is the same 8e-4 in every
-    run, and the amplitude, which the scheme damps, is fitted as a(0) exp(-gamma t) cos(w t); the
-    fit (dt, w, gamma) is appended to ``fits``."""
-    cfg = ctx.cfg
-    X = model.X
-    probe = ModeProbe(X, mass, direction, polarization, k, origin, region)
-    A = cfg.strain / k  # peak strain k A
-    state = model.make_state(X + probe.displacement(A))
-    implicit, dt, n_steps = wave_steps(ctx, model, k, c_guess)
-    times, amps = [], []
-
-    def observe(step, st):
-        times.append(step * dt)
-        amps.append(probe.amplitude(st.x.to_numpy()))
-
-    log = None
-    if draw is not None and ctx.rec.enabled:
-        axis, quantity = displacement_component(direction, polarization)
-        gain = DRAWN_AMPLITUDE * (2 * math.pi / k) / A
-        view = dataclasses.replace(view or RunView(), energy=None)
-        if quantity.startswith("u_t"):
-            view.label = f"{view.label or name}, t = ({', '.join(f'{a:.2f}' for a in axis[:len(polarization)])})"
-        log = lambda rec, st: draw(rec, st.x.to_numpy().astype(np.float64), gain, axis, quantity, A)
-    W0 = model.potential_energy(state.x)
-    with _pcg_for_3d_boxes(ctx, name, model, implicit):
-        simulate(ctx, name, model, state, dt, n_steps, integrator="velocity-verlet", every=1,
-                 energy_bound=10 * W0, observe=observe, log=log, energy_every=4, view=view if log else None)
-    if not implicit:
-        return phase_frequency(np.asarray(times), np.asarray(amps)) / k
-    w, gamma = damped_frequency(np.asarray(times), np.asarray(amps))
-    if fits is not None:
-        fits.append(dict(name=name, dt=dt, w=w, gamma=gamma))
-    ctx.progress(f"{name}: backward Euler, dt = {dt:.4g} s (w dt = {w * dt:.4f}), fitted damping "
-                 f"{gamma:.4g} 1/s, the scheme's {be_damping_rate(w, dt):.4g} 1/s")
-    return w / k
-
-
-@contextlib.contextmanager
-def _pcg_for_3d_boxes(ctx, name: str, model: Model, implicit: bool):
-    """Under backward Euler with --solver cholesky, a run on a 3D box uses pcg instead: a direct
-    LL^T of a 3D lattice fills in far more than a sheet's (Eigen's simplicial factorisation, one
-    per step, takes ~1 s for the smallest box here, 3249 vertices, and ~40 s at 10^4; the boxes
-    go up to 107217 vertices). Sheets keep cholesky."""
-    stepping = ctx.stepping
-    if implicit and stepping.solver == "cholesky" and np.ptp(model.X[:, 2]) > 0:
-        ctx.progress(f"{name}: --solver cholesky is impractical for this 3D box ({model.n} vertices; a direct "
-                     f"LL^T of a 3D lattice fills in: ~1 s per step at 3249 vertices, ~40 s at 10^4): this run "
-                     f"uses pcg")
-        ctx.stepping = dataclasses.replace(stepping, solver="pcg")
-    try:
-        yield
-    finally:
-        ctx.stepping = stepping
-
-
-def be_experiments(ctx, where: str, fits: list, jittered: list = ()) -> list:
-    """Under backward Euler (``fits`` not empty): the fitted damping of the runs on regular meshes
-    (``fits``) against the scheme's own, and the largest phase lag of all runs. ``where`` prefixes
-    the experiments' ids (every wave stage has these two)."""
-    if not fits:
-        return []
-    ratios = [f["gamma"] / be_damping_rate(f["w"], f["dt"]) for f in fits]
-    worst = max(ratios, key=lambda q: abs(q - 1))
-    every = list(fits) + list(jittered)
-    phase = max(1 - f["w"] * f["dt"] / math.tan(f["w"] * f["dt"]) for f in every)
-    ctx.progress("backward Euler: fitted damping / the scheme's on the regular meshes: "
-                 + ", ".join(f"{q:.4f}" for q in ratios) + "; largest phase lag 1 - arctan(W dt)/(W dt) = "
-                 f"{phase:.2e} ({len(every)} runs)")
-    return [
-        Experiment(f"backward Euler damps each wave by 1/sqrt(1 + (W dt)^2) per step: fitted / scheme's decay "
-                   f"rate (worst of {len(fits)} runs)", 1.0, worst, BE_DAMPING_TOL,
-                   id=f"{where}-backward-euler-damping"),
-        Experiment(f"backward Euler's phase lag 1 - arctan(W dt)/(W dt) at the chosen dt (largest of {len(every)})",
-                   BE_PHASE_LAG, phase, 0, "<=", id=f"{where}-backward-euler-phase-lag"),
-    ]
-
-
-def sheet_drawer(mesh3: M.Mesh):
-    """draw(rec, x, gain, axis, quantity, scale): the sheet's triangles at X + gain (x - X), each
-    vertex coloured by its displacement along ``axis`` on the run's fixed ``scale``."""
-    X, T = mesh3.vertices, mesh3.triangles
-
-    def draw(rec, x, gain, axis, quantity, scale):
-        u = x - X
-        rec.mesh(X + gain * u, T, vertex_colors=rec.colors(u @ axis, "signed", quantity, scale))
-    return draw
-
-
-def solid_drawer(mesh: M.Mesh):
-    """draw(rec, x, gain, axis, quantity, scale): a tet box by its surface triangles, drawn and
-    coloured as :func:`sheet_drawer` draws a sheet."""
-    faces = M.boundary_faces(mesh)
-    verts, inv = np.unique(faces, return_inverse=True)
-    faces_local = inv.reshape(-1, 3)
-    Xs = mesh.vertices[verts]
-
-    def draw(rec, x, gain, axis, quantity, scale):
-        u = x[verts] - Xs
-        rec.mesh(Xs + gain * u, faces_local, vertex_colors=rec.colors(u @ axis, "signed", quantity, scale))
-    return draw
-
-
-def _unit(v) -> np.ndarray:
-    v = np.asarray(v, dtype=np.float64)
-    return v / np.linalg.norm(v)
-
-
-def square_domain_cells(half: float, spacing: float) -> int:
-    return 2 * int(math.ceil(half / spacing))
 
 
 # ---------------------------------------------------------------------------- stage 1
@@ -356,13 +106,6 @@ def _refinement_level(ctx, level: int, nc: int, k_spring, speeds: dict, fits: li
 
 # ---------------------------------------------------------------------------- stage 2
 
-def eq_sheet(cfg, half_cells: float, spacing: float = 1.0) -> M.Mesh:
-    """An equilateral lattice about 2*half_cells spacings on a side."""
-    nx = square_domain_cells(half_cells * spacing, spacing) + 1
-    ny = square_domain_cells(half_cells * spacing, spacing * math.sqrt(3) / 2) + 1
-    return M.equilateral_lattice(nx, ny, spacing)
-
-
 def stage_equilateral(ctx):
     cfg = ctx.cfg
     announce(ctx, 2)
@@ -408,7 +151,7 @@ def _equilateral_speeds(ctx, cP: float, cS: float, fits: list) -> dict:
     span = wave_time(ctx, model, k, cS) if draw is not None else None  # the S waves' time: P's are sqrt(3) faster
     out = {}
     for label, d in (("x", [1.0, 0.0]), ("y", [0.0, 1.0])):
-        n = _unit(d)
+        n = unit(d)
         for wave, p, guess in (("P", n, cP), ("S", np.array([-n[1], n[0]]), cS)):
             where = "an edge direction" if label == "x" else "across the edges"
             view = RunView(label=f"{wave} wave along {label} ({where})", camera="top", span=span)
@@ -471,7 +214,7 @@ def _pattern_speeds(ctx, pattern: str, n: int, k: float, r: float, measured: dic
         if ctx.rec.enabled and (pattern, label) in SHOWN_PATTERN_RUNS:
             draw = sheet_drawer(m3)
             view = RunView(label=f"{pattern} grid, P wave along {label}", camera="top", span=shown["span"])
-        v = standing_wave(ctx, f"{pattern}_{label}", model, mass, _unit(d), pol[:, -1], k, ctr, region,
+        v = standing_wave(ctx, f"{pattern}_{label}", model, mass, unit(d), pol[:, -1], k, ctr, region,
                           speeds[-1], draw, fits, view=view)
         measured[pattern, label] = (v, speeds[-1])
         ctx.progress(f"{pattern}, P along {label}: measured {v:.5f}, Cauchy-Born {speeds[-1]:.5f} m/s")
@@ -598,7 +341,7 @@ def _tet_box_speeds(ctx, C_unit: np.ndarray, fits: list) -> dict:
             view = RunView(label=f"{'P' if label == '(1,1,1)' else 'quasi-P'} wave along {label}, "
                                  f"h = 1/{cfg.box_cells * refine} m",
                            camera="outside", span=span)
-            v = standing_wave(ctx, f"P_{label}_h{refine}", model, mass, _unit(d), pol[:, -1], k, ctr, region,
+            v = standing_wave(ctx, f"P_{label}_h{refine}", model, mass, unit(d), pol[:, -1], k, ctr, region,
                               speeds[-1], draw, fits, view=view)
             out[label, refine] = (v, speeds[-1])
             ctx.progress(f"  P along {label}: measured {v:.5f}, Cauchy-Born {speeds[-1]:.5f} m/s")
@@ -606,6 +349,9 @@ def _tet_box_speeds(ctx, C_unit: np.ndarray, fits: list) -> dict:
 
 
 # ---------------------------------------------------------------------------- stage 5
+
+STRETCH_TOL = 1e-8      # the static stretch's residual
+
 
 def stage_stretch(ctx):
     cfg = ctx.cfg
@@ -656,7 +402,7 @@ def _pull(ctx, name: str, m2: M.Mesh, end_width: float, unsolved: list):
     ctx.progress(f"{name}: {res.iterations} Newton steps, residual {res.residual:.2g}; eps_xx {exx:.6g} in the middle "
                  f"(nominal {cfg.strain:g}), eps_yy {eyy:.6g}, pin force {F:.6g} N")
     if ctx.rec.enabled:
-        _draw_strip(ctx.rec, name, m3, res.x, u, cfg.strain)
+        draw_strip(ctx.rec, name, m3, res.x, u, cfg.strain)
     return -eyy / exx, F / (width * exx), F / (width * cfg.strain)
 
 
@@ -670,20 +416,46 @@ def _middle_strains(X, u, x0, x1):
     return exx, eyy
 
 
-STRIPS = {"equilateral_strip": "equilateral strip", "alternating_strip": "alternating right-triangle strip"}
+# ---------------------------------------------------- shared by the stages: reasons, backward Euler's claims
+
+def dispersion_reason(cells: float, tol: float = 2e-2) -> str:
+    """Why a wave speed measured on a lattice misses its long-wavelength value: a wave only ``cells``
+    lattice spacings long is slower by about (k a)^2/24 (k a = 2 pi / cells), the lattice's dispersion.
+    Empty when that is under a quarter of ``tol``."""
+    ka = 2 * math.pi / cells
+    slow = ka * ka / 24
+    if slow <= 0.25 * tol:
+        return ""
+    return (f"lattice dispersion: the wave is only {cells:.3g} spacings long, and a lattice's waves that short are "
+            f"slower than the long-wavelength (Cauchy-Born) value by about (k a)^2/24 = {slow:.2%}; use a longer "
+            "wavelength")
 
 
-def _draw_strip(rec, name, m3, x, u, strain):
-    """The stretched strip (one frame) and its springs, coloured by strain on the scale of the
-    nominal strain, the displacements magnified so that the end moves a quarter of the strip's
-    length (the narrowing in the middle, Poisson's ratio, then shows)."""
-    X = m3.vertices
-    gain = 0.25 / strain
-    rec.run(name, RunView(label=f"{STRIPS[name]} stretched by {100 * strain:.2g}%, clamped ends, "
-                                f"displacement x{gain:.0f}", camera="top", energy=None))
-    rec.set_time(0, 0.0)
-    s = edge_strain(x, m3.edges, m3.rest_lengths)
-    xd = X + gain * u
-    rec.mesh(xd, m3.triangles, vertex_colors=rec.colors(vertex_strain(len(X), m3.edges, s), "signed", "strain",
-                                                        strain))
-    rec.springs(xd, m3.edges, s, scale=strain)
+def with_reason(exps: list, reason: str) -> list:
+    """``exps`` with ``reason`` given to every experiment that has none."""
+    for e in exps:
+        if not e.reason:
+            e.reason = reason
+    return exps
+
+
+def be_experiments(ctx, where: str, fits: list, jittered: list = ()) -> list:
+    """Under backward Euler (``fits`` not empty): the fitted damping of the runs on regular meshes
+    (``fits``) against the scheme's own, and the largest phase lag of all runs. ``where`` prefixes
+    the experiments' ids (every wave stage has these two)."""
+    if not fits:
+        return []
+    ratios = [f["gamma"] / be_damping_rate(f["w"], f["dt"]) for f in fits]
+    worst = max(ratios, key=lambda q: abs(q - 1))
+    every = list(fits) + list(jittered)
+    phase = max(1 - f["w"] * f["dt"] / math.tan(f["w"] * f["dt"]) for f in every)
+    ctx.progress("backward Euler: fitted damping / the scheme's on the regular meshes: "
+                 + ", ".join(f"{q:.4f}" for q in ratios) + "; largest phase lag 1 - arctan(W dt)/(W dt) = "
+                 f"{phase:.2e} ({len(every)} runs)")
+    return [
+        Experiment(f"backward Euler damps each wave by 1/sqrt(1 + (W dt)^2) per step: fitted / scheme's decay "
+                   f"rate (worst of {len(fits)} runs)", 1.0, worst, BE_DAMPING_TOL,
+                   id=f"{where}-backward-euler-damping"),
+        Experiment(f"backward Euler's phase lag 1 - arctan(W dt)/(W dt) at the chosen dt (largest of {len(every)})",
+                   BE_PHASE_LAG, phase, 0, "<=", id=f"{where}-backward-euler-phase-lag"),
+    ]

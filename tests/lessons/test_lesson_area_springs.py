@@ -20,7 +20,7 @@ from lessons._framework import validate_config
 from engine.theory.schemes import backward_euler_damping_rate as be_damping_rate
 from lessons._measure import central_gradient, damped_frequency
 from lessons.area_springs import LESSON, AreaSpringsConfig
-from lessons.area_springs.stages import bulk_tensor
+from lessons.area_springs.scene import bulk_tensor
 from tests.helpers import assert_all_passed, assert_unique_ids, run_stage
 
 
@@ -141,7 +141,7 @@ def test_stage2_records_each_wave_in_its_own_view_coloured_by_its_displacement(t
 
 
 def test_displacement_component_names_the_axis_or_the_wave_direction():
-    from lessons.area_springs.stages import displacement_component
+    from lessons.area_springs.scene import displacement_component
     a, name = displacement_component([1.0, 0.0], [0.0, -1.0])  # S along x
     assert name == "u_y (m)" and np.allclose(a, [0, 1, 0])
     a, name = displacement_component([1, 1, 1] / np.sqrt(3), [-1, -1, -1] / np.sqrt(3))  # P along (1,1,1)

@@ -105,7 +105,7 @@ def check_plan(lesson_id: str, cfg) -> None:
         assert all(math.isfinite(dt) and dt > 0 for dt in plan["dt"].values())
         assert S.stage4_seconds(cfg) <= WORK_BUDGET_S
     elif lesson_id == "area-springs":
-        from lessons.area_springs import stages as S
+        from lessons.area_springs import scene as S
         assert all(S.stage_seconds(cfg, i) <= WORK_BUDGET_S for i in range(1, 6))
     else:
         from lessons.explicit_vs_implicit import scene as S
