@@ -8,8 +8,8 @@ weight only multiplies by three), a hanging cloth that folds, and a curved shell
 shape.
 
 Physics lives in :mod:`engine.energies.bending`, :mod:`engine.mesh`, :mod:`engine.statics`
-and the integrators; :mod:`.stages` builds the scenes, runs them and measures, and
-``narrative.md`` narrates each stage.
+and the integrators; :mod:`.scene` builds the hinges, sheets and shell and draws them,
+:mod:`.stages` runs them and measures, and ``narrative.md`` narrates each stage.
 """
 from dataclasses import dataclass
 
@@ -18,7 +18,7 @@ from engine.constants import G
 from engine.errors import ParameterError
 
 from .._framework import Lesson, narrated_stages, param
-from . import stages
+from . import scene, stages
 
 
 @dataclass
@@ -105,7 +105,7 @@ class BendingConfig:
     def _validate_shell(self):
         """Stage 5: the static problems depend only on the load against the bending stiffness,
         rho g R^3/B (times push for the push), and on the stretching against the bending, E R^2/B."""
-        R = stages.SHELL_RADIUS
+        R = scene.SHELL_RADIUS
         membrane = self.shell_E * R * R / self.shell_B
         if not SHELL_MEMBRANE[0] <= membrane <= SHELL_MEMBRANE[1]:
             raise ParameterError(
@@ -138,7 +138,7 @@ CLOTH_BENDING_LENGTH = (0.1, 0.31)    # (B_mid / (rho g))^(1/3), m
 SHELL_MEMBRANE = (25.0, 2.5e5)        # E R^2 / B
 SHELL_LOAD = (0.1, 2.0)               # rho g R^3 / B over the default's
 SHELL_PUSH = (10.0, 40.0)             # push x rho g R^3 / B over the default's
-SHELL_DEFAULT_LOAD = 0.005 * G * stages.SHELL_RADIUS ** 3 / 1.0
+SHELL_DEFAULT_LOAD = 0.005 * G * scene.SHELL_RADIUS ** 3 / 1.0
 
 
 LESSON = Lesson(
