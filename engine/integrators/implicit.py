@@ -66,6 +66,26 @@ EXACT_BELOW = 1e-2  # try the exact Hessian once |grad Phi| < EXACT_BELOW |grad 
 # Kernels (one pass over the vertices each; pinned vertices: inv_mass == 0)
 # --------------------------------------------------------------------------------------------
 
+def newton_coefficients(dt: float, alpha: float = 0.0, beta: float = 0.0) -> tuple[float, float]:
+    """(a, b) of the Newton matrix A = a M + b H of (N1) at x = x_n: a = 1/dt^2 + alpha/dt,
+    b = 1 + beta/dt (1/s^2, 1)."""
+    return 1.0 / (dt * dt) + alpha / dt, 1.0 + beta / dt
+
+
+@ti.func
+def newton_residual(f_i, m_i, x_i, xn_i, v_i, inv_dt2, alpha_over_dt, dt):
+    """-grad Phi at one free vertex (N): f_i - m_i (x_i - x_n,i - dt v_n,i)/dt^2 - alpha m_i (x_i - x_n,i)/dt,
+    given 1/dt^2 and alpha/dt; f_i includes the weight m_i g."""
+    d = x_i - xn_i
+    return f_i - m_i * (inv_dt2 * (d - dt * v_i) + alpha_over_dt * d)
+
+
+@ti.func
+def step_velocity(x_i, xn_i, inv_dt):
+    """v+ = (x+ - x_n)/dt at one free vertex, given 1/dt (m/s)."""
+    return inv_dt * (x_i - xn_i)
+
+
 @ti.kernel
 def _be_residual(x: vec3_array, xn: vec3_array, v: vec3_array, f: vec3_array, mass: scalar_array,
                  inv_mass: scalar_array, inv_dt2: float, alpha_over_dt: float, dt: float,
@@ -76,8 +96,7 @@ def _be_residual(x: vec3_array, xn: vec3_array, v: vec3_array, f: vec3_array, ma
     for i in range(x.shape[0]):
         r = ti.math.vec3(0.0)
         if inv_mass[i] > 0.0:
-            d = x[i] - xn[i]
-            r = f[i] - mass[i] * (inv_dt2 * (d - dt * v[i]) + alpha_over_dt * d)
+            r = newton_residual(f[i], mass[i], x[i], xn[i], v[i], inv_dt2, alpha_over_dt, dt)
         rhs[i] = r
         s += r.dot(r)
     return s
@@ -112,7 +131,7 @@ def _be_finish(x: vec3_array, xn: vec3_array, v: vec3_array, inv_mass: scalar_ar
     # v+ = (x+ - x_n)/dt ; pinned: x = x_n, v = 0
     for i in range(x.shape[0]):
         if inv_mass[i] > 0.0:
-            v[i] = inv_dt * (x[i] - xn[i])
+            v[i] = step_velocity(x[i], xn[i], inv_dt)
         else:
             x[i] = xn[i]
             v[i] = ti.math.vec3(0.0)
@@ -230,7 +249,7 @@ class BackwardEuler:
         xn, f, rhs, dx, trial = work["xn"], work["f"], work["rhs"], work["dx"], work["trial"]
         inv_mass = model.inv_mass_nd
         inv_dt2, a_dt = 1.0 / (dt * dt), self.rayleigh_alpha / dt
-        mass_coef, hess_coef = inv_dt2 + a_dt, 1.0 + self.rayleigh_beta / dt
+        mass_coef, hess_coef = newton_coefficients(dt, self.rayleigh_alpha, self.rayleigh_beta)
         copy_vec3(x, xn)
 
         info = StepInfo()
