@@ -420,7 +420,7 @@ def run_lesson(lesson: Lesson, cfg, rec, stages: list[int] | None = None, out=sy
             rec.mark(str(exc), level="ERROR")
             print(f"   error: {exc}", file=err, flush=True)
             experiments = [Experiment("stage ran without an unexpected blow-up", 0, exc.step + 1, 0, "<=",
-                                      id=f"no-blow-up-stage{index}")]
+                                      id=f"no-blow-up-stage{index}", reason=str(exc))]
         print(text_table(experiments), file=out)
         for e in experiments:
             if e.reason and not e.passed:

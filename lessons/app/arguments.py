@@ -194,9 +194,14 @@ def _main_parser(lesson_ids: list[str]) -> argparse.ArgumentParser:
                 description="Elastic-simulation lessons in Taichi, recorded with Rerun.",
                 epilog="Commands:\n  list              one line per lesson: id, title, stages\n"
                        "  run LESSON|all    run lessons (see 'python -m lessons run LESSON --help' for "
-                       "the lesson's parameters)\n\nLessons: " + ", ".join(lesson_ids),
+                       "the lesson's parameters)\n"
+                       "  exercise LESSON|all [DIR]\n"
+                       "                    write a student's template: the lesson's formulas to write\n"
+                       "  check LESSON|all --solution DIR\n"
+                       "                    grade a student's functions with the lesson's own experiments\n"
+                       "                    (see 'python -m lessons check --help')\n\nLessons: " + ", ".join(lesson_ids),
                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("command", choices=["list", "run"], help="list or run")
+    p.add_argument("command", choices=["list", "run", "exercise", "check"], help="list, run, exercise or check")
     p.add_argument("--version", action="version", version=f"%(prog)s {_version()}",
                    help="print the package version and exit")
     return p

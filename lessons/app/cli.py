@@ -1,5 +1,6 @@
-"""Command line: ``python -m lessons list`` and ``python -m lessons run <id>|all`` (its parsers in
-lessons.app.arguments, its output paths' checks in lessons.app.output_paths).
+"""Command line: ``python -m lessons list``, ``python -m lessons run <id>|all`` (its parsers in
+lessons.app.arguments, the run's plan checked in lessons.app.run_plan, its output paths' checks in
+lessons.app.output_paths), ``exercise`` and ``check`` (lessons.app.exercises, lessons.app.grading).
 
 ``--stage`` takes stage numbers, lists and ranges (``3``, ``2-4``, ``1,3,5``, ``2-3,5``; repeatable);
 ``--pause`` waits for Enter between stages (``q`` stops there). Every other option may be given
@@ -19,7 +20,6 @@ an earlier run under the final names alone (``--overwrite-partial``: the final n
 from __future__ import annotations
 
 import dataclasses
-import errno
 import os
 import re
 import signal
@@ -31,10 +31,11 @@ from pathlib import Path
 from lessons.app.outfile import OutputWriteError
 
 from . import registry
-from .arguments import UsageError, _lesson_token, _main_parser, _run_parser, parse_stages
+from .arguments import UsageError, _main_parser
 from .output_paths import _outputs, _prepare, _shown
 from .results import encode as encode_results, results_document
-from .._framework import Stepping, Terminated, _pending_signal, note_signal, run_lesson, validate_config
+from .run_plan import _plan_run, _RunPlan
+from .._framework import Terminated, _pending_signal, note_signal, run_lesson
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INT, EXIT_TERM = 0, 1, 2, 130, 143
 EXIT_HUP, EXIT_PIPE = 129, 141
@@ -42,36 +43,6 @@ HANDLED_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", 
 
 
 _CONTROL = re.compile("[\x00-\x1f\x7f-\x9f\u2028\u2029]")  # would break the one-line error message
-
-
-def _stdin_is_tty(stream) -> bool:
-    try:
-        return stream is not None and stream.isatty()
-    except (AttributeError, ValueError, OSError):  # no stream, or a closed one
-        return False
-
-
-class _Pause:
-    """``--pause``: between two stages (and, with 'all', two lessons) wait for Enter on ``stdin``;
-    'q' (or 'quit', or end of input) stops the run there. ``stopped`` tells the caller."""
-
-    def __init__(self, stdin, out):
-        self.stdin, self.out, self.stopped = stdin, out, False
-
-    def ask(self, what: str) -> bool:
-        print(f"\npress Enter for {what}, or q + Enter to stop: ", end="", file=self.out, flush=True)
-        line = self.stdin.readline()
-        if not line:  # end of input (Ctrl-D)
-            print(file=self.out)
-        if not line or line.strip().lower() in ("q", "quit"):
-            self.stopped = True
-            print(f"stopped before {what}: the rest of the run is skipped", file=self.out, flush=True)
-            return False
-        return True
-
-    def for_lesson(self, lesson):
-        n = len(lesson.stages)
-        return lambda index, title: self.ask(f"stage {index}/{n}: {title}")
 
 
 def _list(out) -> int:
@@ -165,79 +136,6 @@ def run(argv: list[str], out=None, err=None, stdin=None, signals: "_Signals | No
     outputs = _prepare_outputs(plan.args, plan.chosen)
     session = _Session(plan, info, outputs, signals if signals is not None else _Signals(), out, err)
     return session.execute()
-
-
-@dataclasses.dataclass
-class _RunPlan:
-    """What one ``run`` asks for, checked: its arguments as typed (``argv``) and parsed (``args``),
-    the lessons to run, the stepping options, the stage numbers (None: every stage), the ``--pause``
-    prompt (None without it) and each lesson's configuration by id."""
-
-    argv: list[str]
-    args: object
-    chosen: list
-    stepping: Stepping
-    stages: list[int] | None
-    pause: _Pause | None
-    configs: dict
-
-
-def _parse_lesson_argument(argv: list[str]):
-    """Parse ``run``'s arguments with the parser of the lesson they name; returns (the parsed
-    arguments, the lessons to run, the lesson named or None for 'all'). A missing or unknown
-    lesson is a UsageError."""
-    lessons_ = registry.all_lessons()
-    ids = [l.id for l in lessons_]
-    by_id = {l.id: l for l in lessons_}
-    lesson_arg = _lesson_token(argv, lessons_)
-    lesson = by_id.get(lesson_arg)
-    parser = _run_parser(ids, lesson)
-    if lesson_arg is None and not any(a in ("-h", "--help") for a in argv):
-        raise UsageError("LESSON is required: one of " + ", ".join(ids) + ", or all")
-    if lesson_arg is not None and lesson is None and lesson_arg != "all":
-        raise UsageError(f"LESSON must be one of {', '.join(ids)}, or all (got {lesson_arg!r})")
-    args = parser.parse_args(argv)
-    return args, (lessons_ if args.lesson == "all" else [lesson]), lesson
-
-
-def _plan_run(argv: list[str], stdin, out) -> _RunPlan:
-    """Parse and check ``run``'s arguments: the lesson, its parameter overrides, the stepping
-    options, ``--stage`` and ``--pause``, and every chosen lesson's configuration. Bad input is a
-    UsageError; nothing has run yet."""
-    args, chosen, lesson = _parse_lesson_argument(argv)
-    overrides = {f.name: getattr(args, f.name) for f in dataclasses.fields(lesson.config)
-                 if getattr(args, f.name, None) is not None} if lesson else {}
-    stepping = Stepping(**{f.name: getattr(args, f.name) for f in dataclasses.fields(Stepping)
-                           if getattr(args, f.name, None) is not None})
-    stages = None
-    if args.stage is not None:
-        if len(chosen) != 1:
-            raise UsageError("--stage needs a single lesson, not 'all'")
-        stages = parse_stages(args.stage, len(lesson.stages), lesson.id)
-    if args.pause and not _stdin_is_tty(stdin):
-        raise UsageError("--pause needs an interactive terminal (stdin is not a tty); run without --pause, "
-                         "or with --stage N to run one stage")
-    pause = _Pause(stdin, out) if args.pause else None
-    configs = _validated_configs(chosen, lesson, overrides, stepping)
-    return _RunPlan(argv, args, chosen, stepping, stages, pause, configs)
-
-
-def _validated_configs(chosen: list, lesson, overrides: dict, stepping: Stepping) -> dict:
-    """Each chosen lesson's configuration by id (the overrides apply to ``lesson``, the one named),
-    validated with the stepping options before any kernel runs or any file is written; a bad value
-    is a UsageError."""
-    configs = {}
-    try:
-        validate_config(stepping)
-        for l in chosen:
-            cfg = l.config(**overrides) if l is lesson else l.config()
-            validate_config(cfg)
-            if l.validate is not None:
-                l.validate(cfg)
-            configs[l.id] = cfg
-    except ValueError as exc:  # ParameterError, mesh/model errors: bad input, not a crash
-        raise UsageError(str(exc)) from None
-    return configs
 
 
 def _start_runtime(args, chosen: list, configs: dict, err):
@@ -503,7 +401,7 @@ def main(argv: list[str] | None = None, restore_signals: bool = True) -> int:
         lessons_ = registry.all_lessons()
         ids = [l.id for l in lessons_]
         if not argv:
-            raise UsageError("a command is required: list or run (see 'python -m lessons --help')")
+            raise UsageError("a command is required: list, run, exercise or check (see 'python -m lessons --help')")
         if argv[0] in ("-h", "--help", "--version"):
             _main_parser(ids).parse_args(argv[:1])
             return EXIT_OK
@@ -514,7 +412,14 @@ def main(argv: list[str] | None = None, restore_signals: bool = True) -> int:
             return _list(sys.stdout)
         if command == "run":
             return run(rest, signals=signals)
-        raise UsageError(f"command must be 'list' or 'run' (got {command!r}); see 'python -m lessons --help'")
+        if command == "exercise":
+            from .exercises import write_template
+            return write_template(rest, sys.stdout)
+        if command == "check":
+            from .grading import check
+            return check(rest, sys.stdout)
+        raise UsageError(f"command must be 'list', 'run', 'exercise' or 'check' (got {command!r}); see "
+                         f"'python -m lessons --help'")
     except SystemExit as exc:  # --help, --version
         return int(exc.code or 0)
     except UsageError as exc:  # one line, whatever the user typed (control characters escaped)

@@ -1,0 +1,200 @@
+"""Exercises: the student writes a lesson's formulas, the lesson grades them.
+
+Each lesson package that has an exercise holds ``exercise.py`` with ``TASKS``, a list of
+:class:`Task`: a function the student writes (its name, signature, units and the equation it
+implements, for the template), how it takes the engine's place (``install``: the engine's kernels
+are then compiled around the student's function) and its own checks (``check``: the function on
+its own, against the engine's value or finite differences, as experiments whose ``reason`` says
+what a failure means for the student's code). The lesson's reference solution is
+``solution.py`` beside it, written as a student would.
+
+The grader (:mod:`lessons.app.grading`) runs every check in a child process with a time limit:
+a Taichi kernel cannot be interrupted, and a student's endless loop must not hang the grader.
+"""
+from __future__ import annotations
+
+import ast
+import importlib
+import math
+import pkgutil
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from ._framework import Experiment
+
+TI_FUNC, NUMPY = "ti.func", "numpy"
+
+
+@dataclass(frozen=True)
+class Task:
+    """One function the student writes.
+
+    ``args``: the parameters as written in the template's ``def`` line; ``doc``: the template's
+    docstring (arguments with units, what it returns, the equation in words); ``install(func)``:
+    put the student's function where the engine's is; ``check(func)``: its own experiments;
+    ``stages``: the lesson's stages whose experiments run on it (empty: every stage)."""
+    name: str
+    kind: str
+    args: str
+    doc: str
+    install: Callable[[Callable], None]
+    check: Callable[[Callable], list]
+    stages: tuple = ()
+    returns: str = ""
+
+
+class StudentError(Exception):
+    """The student's function could not be used: one line naming the function and what is wrong."""
+
+
+# ------------------------------------------------------------------ the student's module
+
+def module_file(solution_dir: Path, lesson_id: str) -> Path:
+    """Where a lesson's module lives in a solution folder: ``<dir>/<lesson id with _>.py``."""
+    return Path(solution_dir) / (lesson_id.replace("-", "_") + ".py")
+
+
+def empty_functions(path: Path, names) -> list[str]:
+    """The functions among ``names`` that ``path`` defines with an empty body (only a docstring,
+    ``pass``, ``...`` or ``raise NotImplementedError``), in the order of ``names``."""
+    tree = ast.parse(Path(path).read_text(encoding="utf-8"), filename=str(path))
+    bodies = {n.name: n.body for n in ast.walk(tree) if isinstance(n, ast.FunctionDef)}
+    empty = []
+    for name in names:
+        body = [s for s in bodies.get(name, [None]) if s is not None]
+        real = [s for s in body if not (isinstance(s, ast.Pass) or (isinstance(s, ast.Expr) and isinstance(s.value, ast.Constant)))
+                and not (isinstance(s, ast.Raise) and "NotImplementedError" in ast.unparse(s))]
+        if name in bodies and not real:
+            empty.append(name)
+    return empty
+
+
+def load_student_module(path: Path):
+    """Import the student's module from ``path`` (a fresh module object, not cached by name)."""
+    spec = importlib.util.spec_from_file_location(f"student_{Path(path).stem}", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+# ------------------------------------------------------------------ taking the engine's place
+
+def import_package(name: str) -> None:
+    """Import every module of package ``name``, so that a substitution reaches all of them (a
+    module imported after it would keep the engine's function)."""
+    package = importlib.import_module(name)
+    for info in pkgutil.walk_packages(package.__path__, name + "."):
+        importlib.import_module(info.name)
+
+
+def load_before_swap(lesson_package: str) -> None:
+    """Import every module a lesson's stages may use (the engine, the lesson's package, the
+    lessons' shared modules), so that a substitution reaches them all."""
+    import lessons
+    import_package("engine")
+    import_package(lesson_package)
+    for info in pkgutil.iter_modules(lessons.__path__):
+        if info.name.startswith("_") and not info.name.startswith("__"):
+            importlib.import_module(f"lessons.{info.name}")
+
+
+def substitute(original, replacement) -> int:
+    """Replace ``original`` by ``replacement`` in every loaded module of the engine, the lessons and
+    the benchmarks (module attributes and names imported into other modules); returns how many
+    places. Taichi resolves a kernel's functions when it compiles it, so kernels compiled afterwards
+    call ``replacement``."""
+    count = 0
+    for name, module in list(sys.modules.items()):
+        if module is None or name.split(".")[0] not in ("engine", "lessons", "bench"):
+            continue
+        for key, value in list(vars(module).items()):
+            if value is original:
+                setattr(module, key, replacement)
+                count += 1
+    if count == 0:
+        raise RuntimeError(f"{getattr(original, '__name__', original)} was not found in any loaded module")
+    return count
+
+
+# ------------------------------------------------------------------ checks
+
+def deviation(measured: np.ndarray, reference: np.ndarray) -> float:
+    """max |measured - reference| / max |reference| (inf where the measured has NaN or inf)."""
+    measured, reference = np.asarray(measured, float), np.asarray(reference, float)
+    if measured.shape != reference.shape:
+        raise StudentError(f"returns shape {measured.shape[1:]} per call, expected {reference.shape[1:]}")
+    if not np.all(np.isfinite(measured)):
+        return math.inf
+    scale = float(np.max(np.abs(reference))) or 1.0
+    return float(np.max(np.abs(measured - reference))) / scale
+
+
+def first_bad(measured: np.ndarray, reference: np.ndarray, tol: float) -> int:
+    """The index of the first call whose result deviates by more than ``tol`` (relative to the
+    largest reference), or -1."""
+    measured, reference = np.asarray(measured, float), np.asarray(reference, float)
+    scale = float(np.max(np.abs(reference))) or 1.0
+    err = np.abs(measured - reference).reshape(len(measured), -1).max(axis=1) / scale
+    bad = np.flatnonzero(~(err <= tol))
+    return int(bad[0]) if len(bad) else -1
+
+
+def ratio(measured: np.ndarray, reference: np.ndarray, rtol: float = 1e-4) -> float | None:
+    """The constant factor measured/reference where there is one (within ``rtol``, over the entries
+    above 1e-3 of the largest: a finite-difference reference is noisy near zero), else None."""
+    measured, reference = np.ravel(np.asarray(measured, float)), np.ravel(np.asarray(reference, float))
+    keep = np.abs(reference) > 1e-3 * (np.max(np.abs(reference)) or 1.0)
+    if not np.any(keep) or not np.all(np.isfinite(measured)):
+        return None
+    r = measured[keep] / reference[keep]
+    return float(np.median(r)) if np.allclose(r, np.median(r), rtol=rtol, atol=0) else None
+
+
+FACTOR_WORDS = {2.0: "twice", 0.5: "half", -1.0: "minus", -2.0: "minus twice", -0.5: "minus half"}
+
+
+def factor_text(r: float | None) -> str:
+    """'twice' / 'minus' / '3.0 times' for a constant factor, '' for none or 1."""
+    if r is None or abs(r - 1.0) < 1e-6:
+        return ""
+    for value, word in FACTOR_WORDS.items():
+        if abs(r - value) < 1e-6:
+            return word
+    return f"{r:.3g} times"
+
+
+def agreement(claim: str, id: str, dev: float, tol: float, reason: str, unit: str = "") -> Experiment:
+    """An experiment 'the largest relative deviation is at most ``tol``' (theory = the bound)."""
+    return Experiment(claim, tol, dev, 0.0, "<=", unit=unit, id=id, reason=reason)
+
+
+@dataclass
+class Sampler:
+    """Reproducible random inputs for a check (seeded per check)."""
+    seed: int = 7
+    rng: np.random.Generator = field(init=False)
+
+    def __post_init__(self):
+        self.rng = np.random.default_rng(self.seed)
+
+    def vectors(self, n: int, scale: float = 1.0) -> np.ndarray:
+        return scale * self.rng.standard_normal((n, 3))
+
+    def uniform(self, n: int, lo: float, hi: float) -> np.ndarray:
+        return self.rng.uniform(lo, hi, n)
+
+
+def central_difference(fn: Callable[[np.ndarray], np.ndarray], x: np.ndarray, eps: float) -> np.ndarray:
+    """d fn / dx by central differences, for a batch: ``x`` (n, k), ``fn`` maps (m, k) -> (m, ...)
+    (any trailing shape); returns (n, ..., k), the derivative in the last axis."""
+    n, k = x.shape
+    plus = np.repeat(x[:, None, :], k, axis=1) + eps * np.eye(k)[None]
+    minus = np.repeat(x[:, None, :], k, axis=1) - eps * np.eye(k)[None]
+    fp = np.asarray(fn(plus.reshape(n * k, k)))
+    fm = np.asarray(fn(minus.reshape(n * k, k)))
+    d = (fp - fm).reshape((n, k) + fp.shape[1:]) / (2 * eps)
+    return np.moveaxis(d, 1, -1)

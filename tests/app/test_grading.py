@@ -1,0 +1,170 @@
+"""python -m lessons exercise / check: the template, the grader's verdicts and its one-line reports.
+
+The reference solutions (lessons/<id>/solution.py) pass every claim of every lesson with the
+engine's kernels compiled around them; the template as written fails with one line per function;
+a student's module that does not import, a function that raises, returns the wrong shape or
+NaN, or loops forever is one line naming it (the function checks: tests/lessons/test_exercises.py).
+"""
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from tests.helpers import ROOT
+
+PACKAGES = {"springs": "springs", "rod-waves": "rod_waves", "area-springs": "area_springs", "bending": "bending",
+            "explicit-vs-implicit": "explicit_vs_implicit"}
+
+
+def lessons_cli(*args, cwd, timeout=900):
+    env = dict(os.environ, PYTHONPATH=str(ROOT), ELASTIC_CACHE_DIR=str(ROOT / ".ti_cache"))
+    return subprocess.run([sys.executable, "-m", "lessons", *args], cwd=cwd, env=env, capture_output=True, text=True,
+                          timeout=timeout)
+
+
+def reference(folder: Path, *ids) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    for lesson_id in ids or PACKAGES:
+        shutil.copy(ROOT / "lessons" / PACKAGES[lesson_id] / "solution.py", folder / f"{PACKAGES[lesson_id]}.py")
+    return folder
+
+
+def test_exercise_writes_one_module_per_lesson_with_every_function_and_refuses_to_overwrite(tmp_path):
+    r = lessons_cli("exercise", "all", "ex", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    for package in PACKAGES.values():
+        text = (tmp_path / "ex" / f"{package}.py").read_text()
+        assert "python -m lessons check" in text
+    springs = (tmp_path / "ex" / "springs.py").read_text()
+    for name in ("spring_energy", "spring_force", "spring_hessian", "symplectic_euler", "verlet_kick_drift",
+                 "verlet_kick"):
+        assert f"def {name}(" in springs
+    assert "solution" not in springs.lower().replace("--solution", "")   # no answers in the template
+    before = springs
+    (tmp_path / "ex" / "springs.py").write_text(before + "# my work\n")
+    r = lessons_cli("exercise", "springs", "ex", cwd=tmp_path)
+    assert r.returncode == 2
+    assert r.stderr.strip().splitlines() == [
+        f"python -m lessons: error: {Path('ex') / 'springs.py'} already exists: it may hold your work; give another "
+        f"DIR or move it away first"]
+    assert (tmp_path / "ex" / "springs.py").read_text() == before + "# my work\n"
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["exercise", "nosuch"], "LESSON must be one of rod-waves, springs,"),
+    (["check", "nosuch", "--solution", "."], "LESSON must be one of rod-waves, springs,"),
+    (["check", "springs", "--solution", "missing"], "--solution 'missing' is not a folder"),
+    (["check", "springs", "--solution", "."], "springs.py does not exist: write it first with 'python -m lessons "
+                                              "exercise springs .'"),
+    (["check", "springs", "--solution", ".", "--time-limit", "0"], "--time-limit must be a number of seconds > 0"),
+])
+def test_bad_input_is_one_line_and_exit_2(tmp_path, args, needle):
+    r = lessons_cli(*args, cwd=tmp_path)
+    assert r.returncode == 2
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and needle in lines[0], r.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_the_template_as_written_fails_with_one_line_per_function(tmp_path):
+    assert lessons_cli("exercise", "all", "ex", cwd=tmp_path).returncode == 0
+    r = lessons_cli("check", "all", "--solution", "ex", "--results", "out.json", cwd=tmp_path)
+    assert r.returncode == 1, r.stderr
+    assert r.stderr == "" or "Traceback" not in r.stderr
+    written = [line for line in r.stdout.splitlines() if "not written yet" in line]
+    assert len(written) == 13   # springs 6, rod-waves 1, area-springs 1, bending 2, explicit-vs-implicit 3
+    doc = json.loads((tmp_path / "out.json").read_text())
+    assert doc["failed"] == len(doc["experiments"]) and doc["passed"] == 0
+    assert {row["lesson"] for row in doc["experiments"]} == set(PACKAGES)
+
+
+def test_the_reference_solutions_pass_every_check_of_every_lesson(tmp_path):
+    reference(tmp_path / "ref")
+    r = lessons_cli("check", "all", "--solution", "ref", "--results", "out.json", cwd=tmp_path, timeout=1500)
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr
+    doc = json.loads((tmp_path / "out.json").read_text())
+    assert doc["failed"] == 0 and doc["complete"]
+    rows = doc["experiments"]
+    functions = [row for row in rows if row["stage"] == 0]
+    assert len(functions) >= 14
+    for lesson_id in PACKAGES:   # every stage of every lesson ran on the student's functions
+        stages = {row["stage"] for row in rows if row["lesson"] == lesson_id and row["stage"] > 0}
+        assert len(stages) >= 3, (lesson_id, stages)
+    assert not [row for row in rows if row["id"].endswith("-ran")]
+
+
+STAGE_CATCHES = [
+    # (the reference's line, the wrong line, the stage, a lesson experiment that fails on it, the function check)
+    ("return x + dt * v_new, v_new", "return x + dt * v, v_new", 2, "no-blow-up-stage2", "ex-symplectic-euler"),
+    ("K = (c / (L * L)) * (nnT + (1.0 - L / l) * (ti.math.eye(3) - nnT))",
+     "K = -(c / (L * L)) * (nnT + (1.0 - L / l) * (ti.math.eye(3) - nnT))", 5, "hanging-uniform-converged",
+     "ex-spring-hessian"),
+]
+
+
+@pytest.mark.parametrize("right,wrong,stage,lesson_claim,function_claim", STAGE_CATCHES,
+                         ids=["forward-euler", "hessian-sign"])
+def test_a_mistake_is_caught_by_the_lessons_own_experiments_too(tmp_path, right, wrong, stage, lesson_claim,
+                                                                function_claim):
+    """Forward Euler written for symplectic Euler blows the energy-conservation stage up; a Hessian
+    of the wrong sign stops the hanging rod's static (Newton) solve; the function checks name both."""
+    folder = reference(tmp_path / "s", "springs")
+    path = folder / "springs.py"
+    assert right in path.read_text()
+    path.write_text(path.read_text().replace(right, wrong))
+    r = lessons_cli("check", "springs", "--solution", "s", "--stage", str(stage), "--results", "out.json",
+                    cwd=tmp_path)
+    assert r.returncode == 1
+    failed = {row["id"]: row for row in json.loads((tmp_path / "out.json").read_text())["experiments"]
+              if not row["passed"]}
+    assert function_claim in failed
+    assert failed[lesson_claim]["stage"] == stage
+    assert f"FAIL {lesson_claim}: " in r.stdout and "(this stage ran on your " in r.stdout
+
+
+BROKEN = [
+    ("syntax", "def spring_energy(d, L, c):\n", "ex-module", "springs.py: line"),
+    ("raises", "    v_new = v + dt * a\n", "ex-symplectic-euler-runs", "symplectic_euler: could not be compiled or run"),
+    ("shape", "    return 0.5 * c * strain * strain\n", "ex-spring-energy-runs",
+     "spring_energy: the Taichi compiler crashed on it (signal 6): check that it returns float"),
+    ("nan", "    return 0.5 * c * strain * strain\n", "ex-spring-energy", "returns NaN or inf"),
+]
+
+
+@pytest.mark.parametrize("kind,line,caught_by,needle", BROKEN, ids=[b[0] for b in BROKEN])
+def test_a_broken_function_is_one_line_that_names_it(tmp_path, kind, line, caught_by, needle):
+    folder = reference(tmp_path / "s", "springs")
+    path = folder / "springs.py"
+    text = path.read_text()
+    assert line in text
+    new = {"syntax": "def spring_energy(d, L, c\n",
+           "raises": "    v_new = v + dt * a\n    v_new = undefined_name\n",
+           "shape": "    return ti.math.vec3(0.5 * c * strain * strain)\n",
+           "nan": "    return 0.5 * c * strain * strain * (d.norm() - d.norm()) / (d.norm() - d.norm())\n"}[kind]
+    path.write_text(text.replace(line, new, 1))
+    r = lessons_cli("check", "springs", "--solution", "s", "--functions-only", "--results", "out.json", cwd=tmp_path)
+    assert r.returncode == 1
+    assert "Traceback" not in r.stdout + r.stderr
+    rows = {row["id"]: row for row in json.loads((tmp_path / "out.json").read_text())["experiments"]}
+    assert not rows[caught_by]["passed"]
+    assert needle in rows[caught_by]["reason"], rows[caught_by]["reason"]
+    assert "\n" not in rows[caught_by]["reason"]
+
+
+def test_an_endless_loop_is_stopped_at_the_time_limit_and_the_other_functions_are_still_checked(tmp_path):
+    folder = reference(tmp_path / "s", "springs")
+    path = folder / "springs.py"
+    text = path.read_text()
+    path.write_text(text.replace("    v_half = v + 0.5 * dt * a\n",
+                                 "    v_half = v + 0.5 * dt * a\n    k = 1.0\n    while k > 0.0:\n"
+                                 "        k = k + 1.0\n", 1))
+    r = lessons_cli("check", "springs", "--solution", "s", "--functions-only", "--time-limit", "20",
+                    "--results", "out.json", cwd=tmp_path)
+    assert r.returncode == 1
+    rows = {row["id"]: row for row in json.loads((tmp_path / "out.json").read_text())["experiments"]}
+    assert rows["ex-verlet-kick-drift-runs"]["reason"] == "verlet_kick_drift: stopped after 20 s (an endless loop?)"
+    assert rows["ex-verlet-kick"]["passed"] and rows["ex-spring-energy"]["passed"]
