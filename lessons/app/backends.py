@@ -20,8 +20,8 @@ ndarrays and arithmetic are f64, but:
   the hinge angle of the bending energy needs atan2: ``bending`` and ``explicit-vs-implicit``
   (whose cloth bends) stop with a compile error;
 * Taichi's sparse solver (the Cholesky factorisation of static and implicit solves) runs only on
-  CPU and CUDA: ``springs`` (the hanging rod), ``area-springs`` (the static stretch), ``bending``
-  and ``explicit-vs-implicit`` need it;
+  CPU and CUDA: ``springs`` (the hanging rod), ``area-springs`` (the static stretch), ``bending``,
+  ``explicit-vs-implicit`` and ``membranes`` (the static stretch, the implicit cloth) need it;
 * lavapipe ends every loop of a kernel after 65535 iterations in all, without an error
   (engine.scenes.serial_loop_limit): the spring models' many-steps kernels then stop part-way
   through each launch and ``springs``' energy and wave-speed claims fail. The rod splits its
@@ -44,6 +44,7 @@ VULKAN_NEEDS = {
     "area-springs": (SPARSE,),
     "bending": (ATAN2, SPARSE),
     "explicit-vs-implicit": (ATAN2, SPARSE),
+    "membranes": (SPARSE,),
 }
 _WHY = {
     SPARSE: "Taichi's sparse solver (static and implicit solves) runs only on CPU and CUDA",

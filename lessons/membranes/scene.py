@@ -1,0 +1,179 @@
+"""The scene of ``membranes``: membrane models on triangle meshes (the constant-strain St.
+Venant-Kirchhoff triangle and Baraff and Witkin's conditions, engine.energies.membrane), the
+stretched strip that measures Young's modulus and Poisson's ratio, the hanging cloth, how they are
+drawn, and the estimates of each stage's time.
+
+The standing-wave run is area-springs' (lessons.area_springs.scene.standing_wave): the same probe,
+the same integrator choices, so that the speeds of the two lessons compare run for run.
+"""
+import math
+
+import numpy as np
+
+from engine import mesh as M
+from engine.energies.membrane import MembraneEnergy, lame
+from engine.model import Model
+from lessons.app.blueprint import RunView
+
+from .. import _budget
+from .._budget import StageCost, check_stages
+from ..area_springs.scene import area_model
+
+STRETCH_TOL = 1e-9   # the static stretch's residual (net force / weight scale)
+STRIPS = {"equilateral": "equilateral strip", "alternating": "right-triangle strip (alternating diagonals)"}
+
+
+# ------------------------------------------------------------------ builders
+
+def membrane_model(m3: M.Mesh, rho: float, model: str, pinned=None, gravity=(0.0, 0.0, 0.0), **params):
+    """(Model, its MembraneEnergy) on a 3D-embedded triangle mesh, lumped masses of areal density rho."""
+    energy = MembraneEnergy.from_mesh(m3, model, **params)
+    m = Model(m3.vertices, mass=M.lumped_masses(m3, rho), pinned=pinned, gravity=gravity)
+    m.add_energy(energy)
+    return m, energy
+
+
+def strip(kind: str, cells: int) -> M.Mesh:
+    """A strip ``cells`` spacings long and about a quarter as wide, 3D-embedded at z = 0."""
+    width = max(4, cells // 4)
+    if kind == "equilateral":
+        m2 = M.equilateral_lattice(cells + 1, int(round(width / (math.sqrt(3) / 2))) + 1, 1.0)
+    else:
+        m2 = M.right_triangle_grid(cells + 1, width + 1, float(cells), float(width), kind)
+    return M.embed_3d(m2)
+
+
+def end_width(kind: str) -> float:
+    """How far from each end the clamped vertices reach (the equilateral lattice's rows are
+    staggered by half a spacing)."""
+    return 0.5 + 1e-9 if kind == "equilateral" else 1e-9
+
+
+def uniaxial_theory(model: str, Y_or_ks: float, nu: float, exx: float) -> tuple:
+    """(Poisson's ratio, F/(w exx)) a homogeneous strip pulled to the engineering strain exx in
+    uniaxial stress shows, exactly (no small-strain approximation).
+    stvk: S_yy = 0 gives the Green strains E_yy = -nu E_xx, E_xx = exx + exx^2/2, and the nominal
+    stress P_xx = (1 + exx) Y E_xx; baraff-witkin: the stretch conditions do not couple the axes, so
+    the width keeps its length (Poisson 0) and P_xx = k_s exx."""
+    if model == "baraff-witkin":
+        return 0.0, Y_or_ks
+    Exx = exx + 0.5 * exx * exx
+    eyy = math.sqrt(1.0 - 2.0 * nu * Exx) - 1.0
+    return -eyy / exx + 0.0, (1.0 + exx) * Y_or_ks * Exx / exx   # + 0.0: no "-0" in the tables
+
+
+def middle_strains(X, u, x0, x1):
+    """(eps_xx, eps_yy) fitted from the displacements of the middle fifth of the strip, where it
+    is in uniaxial stress."""
+    mid = np.abs(X[:, 0] - 0.5 * (x0 + x1)) <= 0.1 * (x1 - x0)
+    A = np.stack([np.ones(mid.sum()), X[mid, 0], X[mid, 1]], axis=1)
+    exx = np.linalg.lstsq(A, u[mid, 0], rcond=None)[0][1]
+    eyy = np.linalg.lstsq(A, u[mid, 1], rcond=None)[0][2]
+    return exx, eyy
+
+
+def pull(ctx, name: str, label: str, m3: M.Mesh, kind: str, build, unsolved: list, draw: bool = False):
+    """Clamp the strip's ends, stretch it by cfg.strain, solve the statics; returns (nu, the
+    measured modulus F/(w eps_xx), eps_xx). ``build(m3, pinned)`` makes the model."""
+    from engine.statics import solve_static
+
+    cfg = ctx.cfg
+    X = m3.vertices
+    x0, x1 = X[:, 0].min(), X[:, 0].max()
+    left, right = X[:, 0] <= x0 + end_width(kind), X[:, 0] >= x1 - end_width(kind)
+    model = build(m3, np.flatnonzero(left | right))
+    start = X.copy()
+    start[:, 0] = x0 + (X[:, 0] - x0) * (1 + cfg.strain)
+    res = solve_static(model, x0=start, tol=STRETCH_TOL, max_iter=60, raise_on_failure=False)
+    if not res.converged:
+        unsolved.append(f"{label}: the static solve stopped at residual {res.residual:.2g} > {STRETCH_TOL:g} after "
+                        f"{res.iterations} Newton steps ({res.message})")
+    u = res.x - X
+    width = X[:, 1].max() - X[:, 1].min()
+    exx, eyy = middle_strains(X, u, x0, x1)
+    F = res.reactions[right, 0].sum()
+    ctx.progress(f"{label}: {res.iterations} Newton steps, eps_xx {exx:.6g}, eps_yy {eyy:.6g}, pull {F:.6g} N")
+    if draw and ctx.rec.enabled:
+        draw_strip(ctx.rec, name, label, m3, X + u, u, cfg.strain)
+    return -eyy / exx + 0.0, F / (width * exx), exx
+
+
+def hanging_cloth(cfg, model: str = "baraff-witkin"):
+    """A square cloth cfg.cloth_size on a side in the x-z plane, cfg.cloth_n vertices a side, its top
+    edge pinned, under gravity: (Model, mesh)."""
+    n = cfg.cloth_n
+    m2 = M.right_triangle_grid(n, n, cfg.cloth_size, cfg.cloth_size, "alternating")
+    m3 = M.embed_3d(m2, plane="xz")
+    X = m3.vertices
+    top = np.flatnonzero(X[:, 2] >= X[:, 2].max() - 1e-9)
+    params = (dict(k_stretch=cfg.k_stretch, k_shear=cfg.k_shear) if model == "baraff-witkin"
+              else dict(Y=cfg.k_stretch, nu=cfg.nu))
+    built, _ = membrane_model(m3, cfg.cloth_rho, model, pinned=top, gravity=(0.0, 0.0, -9.81), **params)
+    return built, m3
+
+
+def plane_speeds(Y: float, nu: float, rho: float) -> tuple:
+    """(c_P, c_S) of the isotropic plane-stress membrane: sqrt(Y/((1 - nu^2) rho)), sqrt(mu/rho)."""
+    mu, lam = lame(Y, nu)
+    return math.sqrt((lam + 2 * mu) / rho), math.sqrt(mu / rho)
+
+
+def springs_for(m3: M.Mesh, E: float, rho: float, pinned=None) -> Model:
+    """Area-scaled springs c_e = E A_e on the same mesh (area-springs' model), for contrast."""
+    return area_model(m3, E, rho, pinned=pinned)[0]
+
+
+# ------------------------------------------------------------------ drawing
+
+def draw_strip(rec, name: str, label: str, m3: M.Mesh, x, u, strain: float) -> None:
+    """The stretched strip (one frame), the displacements magnified so that the end moves a quarter
+    of the strip's length, each vertex coloured by its sideways displacement u_y (the narrowing
+    that Poisson's ratio measures) on the scale of strain x the half width."""
+    X = m3.vertices
+    gain = 0.25 / strain
+    rec.run(name, RunView(label=f"{label} stretched by {100 * strain:.2g}%, clamped ends, displacement x{gain:.0f}",
+                          camera="top", energy=None))
+    rec.set_time(0, 0.0)
+    half = 0.5 * np.ptp(X[:, 1])
+    rec.mesh(X + gain * u, m3.triangles, vertex_colors=rec.colors(u[:, 1], "signed", "u_y (m)", strain * half))
+
+
+def cloth_logger(m3: M.Mesh, scale: float):
+    """log(rec, state): the cloth's triangles coloured by how far each vertex has fallen (m)."""
+    X, T = m3.vertices, m3.triangles
+
+    def log(rec, st):
+        x = st.x.to_numpy().astype(np.float64)
+        rec.mesh(x, T, vertex_colors=rec.colors(X[:, 2] - x[:, 2], "magnitude", "drop (m)", scale))
+    return log
+
+
+# ------------------------------------------------------------------ estimates and budget
+
+# seconds of each stage at the defaults on the reference 2-thread CPU, and how they scale
+STAGE_SECONDS = {1: 1.0, 2: 2.0, 3: 4.0, 4: 3.0}
+
+
+def stage_seconds(cfg, stage: int) -> float:
+    """An estimate of stage ``stage``'s time on the reference CPU, scaled from its time at the defaults."""
+    d = type(cfg)()
+    if stage == 2:   # strips of cells x cells/4 vertices, a few Newton steps each
+        return STAGE_SECONDS[2] * (cfg.strip_cells / d.strip_cells) ** 2
+    if stage == 3:   # sheets of (wavelength)^2 vertices, steps ~ wavelength / cfl
+        return STAGE_SECONDS[3] * (cfg.wavelength / d.wavelength) ** 3 * d.cfl / cfg.cfl
+    if stage == 4:   # backward-Euler steps over the settling time on an n x n cloth
+        return STAGE_SECONDS[4] * (cfg.cloth_n / d.cloth_n) ** 2 * cfg.settle_time / d.settle_time
+    return STAGE_SECONDS.get(stage, 0.0)
+
+
+BUDGET = {2: StageCost("--strip-cells", "use fewer --strip-cells"),
+          3: StageCost("--wavelength, --cfl", "use a shorter --wavelength or a larger --cfl"),
+          4: StageCost("--cloth-n, --settle-time", "use a smaller --cloth-n or a shorter --settle-time")}
+
+
+def check_work(cfg) -> None:
+    check_stages(cfg, stage_seconds, BUDGET)
+
+
+def announce(ctx, stage: int) -> None:
+    _budget.announce(ctx, stage_seconds(ctx.cfg, stage))

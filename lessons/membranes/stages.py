@@ -1,0 +1,261 @@
+"""The stages of ``membranes``: the triangle energies' derivatives and the constant-strain patch
+test, the static stretch that measures Young's modulus and Poisson's ratio on two meshes, wave
+speeds in four directions on the mesh where springs are anisotropic, and a hanging cloth under
+Baraff and Witkin's model stepped by backward Euler at large steps."""
+import math
+
+import numpy as np
+
+from engine import mesh as M
+from engine.energies.membrane import MembraneEnergy, lame
+from engine.stability import stable_dt_estimate
+from engine.waves import cauchy_born_tensor, christoffel
+from lessons.app.blueprint import RunView
+
+from .._framework import Experiment
+from .._scene import simulate
+from ..area_springs.scene import RUN_PERIODS, sheet_drawer, square_domain_cells, standing_wave, unit
+from .scene import (STRIPS, announce, cloth_logger, hanging_cloth, membrane_model, plane_speeds, pull, springs_for,
+                    strip, uniaxial_theory)
+
+
+# ---------------------------------------------------------------------------- stage 1
+
+MODELS = {"stvk": "St. Venant-Kirchhoff triangle", "baraff-witkin": "Baraff-Witkin stretch + shear"}
+
+
+def _patch(seed: int = 4):
+    """A jittered 4 x 4 right-triangle patch (m), 3D-embedded: the mesh every derivative check runs on."""
+    return M.embed_3d(M.jitter(M.right_triangle_grid(4, 4, 0.3, 0.3, "alternating"), 0.2, seed=seed))
+
+
+def _params(cfg, model: str) -> dict:
+    return dict(Y=cfg.Y, nu=cfg.nu) if model == "stvk" else dict(k_stretch=cfg.Y, k_shear=0.5 * cfg.Y)
+
+
+def _psi(model: str, F: np.ndarray, p: dict) -> float:
+    """The energy per rest area of the homogeneous deformation F (3x2): (M1) or (M2) written out."""
+    if model == "stvk":
+        mu, lam = lame(p["Y"], p["nu"])
+        E = 0.5 * (F.T @ F - np.eye(2))
+        return mu * np.sum(E * E) + 0.5 * lam * np.trace(E) ** 2
+    lu, lv, s = np.linalg.norm(F[:, 0]), np.linalg.norm(F[:, 1]), F[:, 0] @ F[:, 1]
+    return 0.5 * p["k_stretch"] * ((lu - 1) ** 2 + (lv - 1) ** 2) + 0.5 * p["k_shear"] * s * s
+
+
+def stage_triangles(ctx):
+    cfg = ctx.cfg
+    rng = np.random.default_rng(1)
+    m3 = _patch()
+    X = m3.vertices
+    exps = []
+    for model, title in MODELS.items():
+        p = _params(cfg, model)
+        energy = MembraneEnergy.from_mesh(m3, model, **p)
+        x = X + 0.05 * rng.standard_normal(X.shape)   # stretched here, compressed there
+        f = energy.forces(x)
+        eps = 1e-7
+        grad = np.zeros_like(x)
+        for i in range(len(x)):
+            for j in range(3):
+                xp, xm = x.copy(), x.copy()
+                xp[i, j] += eps
+                xm[i, j] -= eps
+                grad[i, j] = (energy.energy(xp) - energy.energy(xm)) / (2 * eps)
+        H = energy.dense_hessian(x, psd=False)
+        Hfd = np.zeros_like(H)
+        for c in range(H.shape[0]):
+            xp, xm = x.reshape(-1).copy(), x.reshape(-1).copy()
+            xp[c] += eps
+            xm[c] -= eps
+            Hfd[:, c] = -(energy.forces(xp.reshape(-1, 3)) - energy.forces(xm.reshape(-1, 3))).reshape(-1) / (2 * eps)
+        exact = np.linalg.eigvalsh(H)
+        psd = np.linalg.eigvalsh(energy.dense_hessian(x, psd=True))
+        # constant strain is exact: an affine map X -> F X_uv + b gives W = A psi(F) on any triangles
+        F = np.eye(3)[:, :2] + 0.2 * rng.standard_normal((3, 2))
+        b = rng.standard_normal(3)
+        W_affine = energy.energy(X[:, :2] @ F.T + b)
+        W_theory = m3.total_measure * _psi(model, F, p)
+        Q, _ = np.linalg.qr(rng.standard_normal((3, 3)))
+        slug = "stvk" if model == "stvk" else "bw"
+        ctx.progress(f"{title}: exact Hessian's eigenvalues {exact.min():.3g} .. {exact.max():.3g}, PSD variant's "
+                     f"from {psd.min():.3g}")
+        exps += [
+            Experiment(f"{title}: force = -dW/dx (central differences, max rel. error)", 0,
+                       np.abs(f + grad).max() / np.abs(grad).max(), 1e-6, "abs", id=f"{slug}-force-is-gradient"),
+            Experiment(f"{title}: Hessian = -df/dx (central differences, max rel. error)", 0,
+                       np.abs(H - Hfd).max() / np.abs(Hfd).max(), 1e-6, "abs", id=f"{slug}-hessian-is-jacobian"),
+            Experiment(f"{title}: the exact Hessian of a compressed patch is indefinite (lowest eigenvalue / "
+                       f"largest, clearly below the rigid motions' 0)", -1e-3, exact.min() / exact.max(), 0, "<=",
+                       id=f"{slug}-exact-hessian-indefinite"),
+            Experiment(f"{title}: the PSD variant has no negative eigenvalue (lowest / largest)", -1e-12,
+                       psd.min() / psd.max(), 0, ">=", id=f"{slug}-psd-hessian"),
+            Experiment(f"{title}: an affine deformation of a jittered patch stores area x psi(F) (rel. error)",
+                       W_theory, W_affine, 1e-12, id=f"{slug}-patch-test"),
+            Experiment(f"{title}: energy unchanged by a rigid motion (rel. change)", 0,
+                       abs(energy.energy(x @ Q.T + b) - energy.energy(x)) / energy.energy(x), 1e-12, "abs",
+                       id=f"{slug}-rigid-invariance"),
+        ]
+    return exps
+
+
+# ---------------------------------------------------------------------------- stage 2
+
+POISSON_SWEEP = (0.0, 0.45)   # besides --nu: the ends of the range the lesson claims
+STRETCH_TOL_NU = 2e-3         # absolute, on Poisson's ratio: the clamped ends' influence in the middle fifth
+STRETCH_TOL_E = 2e-3          # relative, on the modulus
+
+
+def stage_stretch(ctx):
+    cfg = ctx.cfg
+    announce(ctx, 2)
+    exps, unsolved = [], []
+    sweep = sorted({cfg.nu, *POISSON_SWEEP})
+    for kind, label in STRIPS.items():
+        m3 = strip(kind, cfg.strip_cells)
+        for nu in sweep:
+            def build(mesh, pinned, nu=nu):
+                return membrane_model(mesh, cfg.rho, "stvk", pinned=pinned, Y=cfg.Y, nu=nu)[0]
+            shown = nu == cfg.nu
+            nu_m, E_m, exx = pull(ctx, f"stvk_{kind}_nu{nu:g}", f"{label}, St. Venant-Kirchhoff, nu = {nu:g}", m3, kind,
+                                  build, unsolved, draw=shown)
+            nu_t, E_t = uniaxial_theory("stvk", cfg.Y, nu, exx)
+            slug = f"{kind}-nu{nu:g}"
+            exps += [Experiment(f"{label}, St. Venant-Kirchhoff set to nu = {nu:g}: Poisson's ratio", nu_t, nu_m,
+                                STRETCH_TOL_NU, "abs", id=f"stvk-poisson-{slug}"),
+                     Experiment(f"{label}, nu = {nu:g}: Young's modulus F/(w eps) = Y (1 + eps)(1 + eps/2)", E_t, E_m,
+                                STRETCH_TOL_E, "rel", "N/m", id=f"stvk-young-{slug}")]
+        nu_s, E_s, _ = pull(ctx, f"springs_{kind}", f"{label}, area springs", m3, kind,
+                            lambda mesh, pinned: springs_for(mesh, cfg.Y, cfg.rho, pinned), unsolved,
+                            draw=kind == "equilateral")
+        if kind == "equilateral":
+            exps.append(Experiment(f"{label}, area springs: Poisson's ratio is 1/3 whatever the material's",
+                                   1 / 3, nu_s, 2e-2, id="springs-poisson-equilateral"))
+        else:
+            m2 = M.right_triangle_grid(9, 9, 8.0, 8.0, kind)
+            C = cauchy_born_tensor(m2.vertices, m2.edges, cfg.Y * M.edge_measure(m2), m2.total_measure)
+            from engine.waves import young_poisson
+            E_cb, nu_cb = young_poisson(C, 0)
+            exps.append(Experiment(f"{label}, area springs: Poisson's ratio (Cauchy-Born, {nu_cb:.3g}: the mesh "
+                                   f"sets it)", nu_cb, nu_s, 2e-2, id=f"springs-poisson-{kind}"))
+        bw = lambda mesh, pinned: membrane_model(mesh, cfg.rho, "baraff-witkin", pinned=pinned, k_stretch=cfg.Y,
+                                                 k_shear=0.5 * cfg.Y)[0]
+        nu_b, E_b, exx = pull(ctx, f"bw_{kind}", f"{label}, Baraff-Witkin", m3, kind, bw, unsolved)
+        exps += [Experiment(f"{label}, Baraff-Witkin: Poisson's ratio 0 (the stretch conditions do not couple u, v)",
+                            0.0, nu_b, STRETCH_TOL_NU, "abs", id=f"bw-poisson-{kind}"),
+                 Experiment(f"{label}, Baraff-Witkin: modulus F/(w eps) = k_stretch", cfg.Y, E_b, STRETCH_TOL_E, "rel",
+                            "N/m", id=f"bw-young-{kind}")]
+    for e in exps:
+        if unsolved and not e.reason:
+            e.reason = "; ".join(unsolved)
+    return exps
+
+
+# ---------------------------------------------------------------------------- stage 3
+
+DIRECTIONS = {"x": ([1.0, 0.0], "x"), "y": ([0.0, 1.0], "y"), "diagonal (1,1)": ([1.0, 1.0], "diagonal-plus"),
+              "diagonal (1,-1)": ([1.0, -1.0], "diagonal-minus")}
+SPEED_TOL = 2e-2   # the lattice's dispersion at the default wavelength is a fraction of this
+ISOTROPY_TOL = 5e-3  # the spread of the P speeds over the directions: a few times the dispersion at 32 spacings
+
+
+def stage_waves(ctx):
+    cfg = ctx.cfg
+    announce(ctx, 3)
+    lam = float(cfg.wavelength)
+    k = 2 * math.pi / lam
+    r = 0.15 * lam
+    cP, cS = plane_speeds(cfg.Y, cfg.nu, cfg.rho)
+    half = r + RUN_PERIODS * lam * (cP / cS) * 1.05 + 2.0   # the fastest wave must not reach the disc from the edge
+    n = square_domain_cells(half, 1.0) + 1
+    m2 = M.right_triangle_grid(n, n, n - 1.0, n - 1.0, "one-way")
+    m3 = M.embed_3d(m2)
+    ctr = np.full(2, 0.5 * (n - 1))
+    region = np.linalg.norm(m2.vertices - ctr, axis=1) <= r
+    model, _ = membrane_model(m3, cfg.rho, "stvk", Y=cfg.Y, nu=cfg.nu)
+    mass = model.mass
+    exps, measured, fits = [], {}, []
+    span = RUN_PERIODS * lam / cS
+    for label, (d, slug) in DIRECTIONS.items():
+        for wave, c_theory in (("P", cP), ("S", cS)):
+            if wave == "S" and label not in ("x", "diagonal (1,1)"):
+                continue
+            n_dir = unit(d)
+            pol = n_dir if wave == "P" else np.array([-n_dir[1], n_dir[0]])
+            view = RunView(label=f"St. Venant-Kirchhoff, one-way grid: {wave} wave along {label}", camera="top",
+                           span=span) if wave == "P" and label in ("diagonal (1,1)", "diagonal (1,-1)") else None
+            v = standing_wave(ctx, f"stvk_{wave}_{slug}", model, mass, n_dir, pol, k, ctr, region, c_theory,
+                              sheet_drawer(m3) if view else None, fits, view=view)
+            measured[wave, label] = v
+            ctx.progress(f"{wave} along {label}: measured {v:.5f} m/s, theory {c_theory:.5f} m/s")
+            exps.append(Experiment(f"St. Venant-Kirchhoff on the one-way grid: {wave} wave along {label} = "
+                                   f"{'sqrt(Y/((1 - nu^2) rho))' if wave == 'P' else 'sqrt(mu/rho)'}", c_theory, v,
+                                   SPEED_TOL, "rel", "m/s", id=f"stvk-{wave.lower()}-wave-{slug}"))
+    spread = max(measured["P", lab] for lab in DIRECTIONS) / min(measured["P", lab] for lab in DIRECTIONS) - 1
+    exps.append(Experiment("St. Venant-Kirchhoff: P speeds in the four directions agree (max/min - 1; the "
+                           "lattice's own dispersion is (k h)^2/24 = {:.2g})".format((k * 1.0) ** 2 / 24), 0, spread,
+                           ISOTROPY_TOL, "abs", id="stvk-isotropic"))
+    # the same grid with area springs: Cauchy-Born's anisotropy, measured along both diagonals
+    springs = springs_for(m3, cfg.Y, cfg.rho)
+    C = cauchy_born_tensor(m2.vertices, m2.edges, cfg.Y * M.edge_measure(m2), m2.total_measure)
+    ratio_t = christoffel(C, DIRECTIONS["diagonal (1,1)"][0], cfg.rho)[0][-1] / \
+        christoffel(C, DIRECTIONS["diagonal (1,-1)"][0], cfg.rho)[0][-1]
+    v_plus = standing_wave(ctx, "springs_P_diagonal-plus", springs, springs.mass, unit([1.0, 1.0]), unit([1.0, 1.0]),
+                           k, ctr, region, cP, None, fits)
+    v_minus = standing_wave(ctx, "springs_P_diagonal-minus", springs, springs.mass, unit([1.0, -1.0]),
+                            unit([1.0, -1.0]), k, ctr, region, cP, None, fits)
+    exps.append(Experiment(f"area springs on the same grid: P speed along / across its diagonals (Cauchy-Born "
+                           f"{ratio_t:.3f})", ratio_t, v_plus / v_minus, SPEED_TOL, id="springs-anisotropic"))
+    return exps
+
+
+# ---------------------------------------------------------------------------- stage 4
+
+METHOD_LABELS = {"backward-euler": "backward Euler", "symplectic-euler": "symplectic Euler",
+                 "velocity-verlet": "velocity Verlet", "forward-euler": "forward Euler"}
+SETTLED_TOL = 1e-6   # distance to the static equilibrium, as a fraction of the cloth's size
+
+
+def stage_hanging(ctx):
+    from engine.statics import solve_static
+
+    cfg = ctx.cfg
+    announce(ctx, 4)
+    model, m3 = hanging_cloth(cfg)
+    ref = solve_static(model, tol=1e-10, max_iter=80)
+    drop = float((m3.vertices[:, 2] - ref.x[:, 2]).max())
+    dt_explicit = stable_dt_estimate(model)
+    method = ctx.integrator_name("backward-euler")
+    label = METHOD_LABELS.get(method, method)
+    reason = "" if method == "backward-euler" else (
+        f"these are backward Euler's claims, and --integrator {method} stepped the cloth: an explicit method "
+        "neither damps the cloth's vibration nor keeps its energy from rising and falling")
+    exps = []
+    for factor in (1, cfg.large_step):
+        dt = factor / 60.0
+        n_steps = max(1, int(round(cfg.settle_time / dt)))
+        state = model.make_state()
+        totals = []
+
+        def observe(step, st):
+            x, v, _ = st.numpy()
+            totals.append(model.potential_energy(st.x) + 0.5 * float(np.sum(model.mass[:, None] * v * v)))
+        name = f"bw_backward_euler_dt{factor}"
+        simulate(ctx, name, model, state, dt, n_steps, integrator="backward-euler", every=1, observe=observe,
+                 log=cloth_logger(m3, 2 * drop), view=RunView(label=f"Baraff-Witkin cloth, {label}, dt = "
+                                                                    f"{factor}/60 s", camera="front",
+                                                              span=cfg.settle_time), solver="cholesky")
+        x = state.numpy().x
+        gap = float(np.abs(x - ref.x).max()) / cfg.cloth_size
+        rise = max(0.0, max(b - a for a, b in zip(totals, totals[1:]))) / abs(totals[0] - min(totals))
+        ctx.progress(f"dt = {factor}/60 s ({dt / dt_explicit:.3g} x the explicit limit {dt_explicit:.3g} s): "
+                     f"{n_steps} steps, distance to the static equilibrium {gap:.3g} x size, largest energy rise "
+                     f"{rise:.3g} of the energy lost")
+        exps += [
+            Experiment(f"{label} at dt = {factor}/60 s = {dt / dt_explicit:.0f} x the explicit limit settles on the "
+                       f"static equilibrium (max distance / size after {cfg.settle_time:g} s)", SETTLED_TOL, gap, 0,
+                       "<=", id=f"bw-settles-dt{factor}", reason=reason),
+            Experiment(f"{label} at dt = {factor}/60 s: the energy never rises from step to step (largest rise / "
+                       f"energy lost)", 1e-9, rise, 0, "<=", id=f"bw-energy-decreases-dt{factor}", reason=reason),
+        ]
+    return exps

@@ -1,0 +1,60 @@
+"""Lesson membranes: every claim passes at the defaults, and the measured moduli follow the
+parameters (any Poisson's ratio in [0, 0.45] on both meshes; springs keep theirs).
+
+Engine-level checks of the membrane energies are in tests/engine/test_membrane.py."""
+import io
+
+import pytest
+
+from engine.errors import ParameterError
+from lessons._framework import run_lesson, validate_config
+from lessons.app.recorder import NullRecorder
+from lessons.membranes import LESSON, MembranesConfig
+
+
+def run(cfg, stages=None):
+    rows = []
+    passed = run_lesson(LESSON, cfg, NullRecorder(), stages, out=io.StringIO(), err=io.StringIO(), quiet=True,
+                        results=rows)
+    return passed, {r["id"]: r for r in rows}
+
+
+def test_every_claim_holds_at_the_defaults():
+    passed, rows = run(MembranesConfig())
+    assert passed, [(k, r["measured"], r["theory"]) for k, r in rows.items() if not r["passed"]]
+    assert len(rows) >= 40
+    for kind in ("equilateral", "alternating"):
+        for nu in (0.0, 0.3, 0.45):
+            assert abs(rows[f"stvk-poisson-{kind}-nu{nu:g}"]["measured"] - nu) < 2e-3
+        assert rows[f"bw-poisson-{kind}"]["measured"] == pytest.approx(0.0, abs=1e-9)
+    assert rows["springs-poisson-equilateral"]["measured"] == pytest.approx(1 / 3, rel=2e-2)
+    assert rows["springs-anisotropic"]["measured"] > 1.5      # springs: 73% faster along one diagonal
+    assert rows["stvk-isotropic"]["measured"] < 5e-3          # the continuum triangle: the same in every direction
+
+
+@pytest.mark.parametrize("nu", [0.1, 0.42])
+def test_the_poisson_ratio_measured_is_the_one_set(nu):
+    passed, rows = run(MembranesConfig(nu=nu), [2])
+    assert passed
+    for kind in ("equilateral", "alternating"):
+        assert rows[f"stvk-poisson-{kind}-nu{nu:g}"]["measured"] == pytest.approx(nu, abs=2e-3)
+
+
+def test_the_wave_speeds_follow_nu():
+    passed, rows = run(MembranesConfig(nu=0.1), [3])
+    assert passed
+    assert rows["stvk-p-wave-x"]["theory"] == pytest.approx((1 / (1 - 0.01)) ** 0.5)
+
+
+@pytest.mark.parametrize("field,value,needle", [
+    ("nu", 0.46, "--nu must be"),
+    ("large_step", 61, "--large-step must be"),
+])
+def test_out_of_range_is_refused(field, value, needle):
+    with pytest.raises(ParameterError, match=needle):
+        validate_config(MembranesConfig(**{field: value}))
+
+
+def test_a_large_step_longer_than_the_settling_time_is_refused():
+    with pytest.raises(ParameterError, match="--large-step 60 .* is longer than --settle-time 0.5 s"):
+        LESSON.validate(MembranesConfig(large_step=60, settle_time=0.5))
