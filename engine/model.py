@@ -252,6 +252,22 @@ class Model:
         for e in self.energies:
             e.add_forces(x, f)
 
+    @property
+    def dampers(self) -> list:
+        """The energies that also damp (Baraff-Witkin's damping of a membrane's conditions, (M3) of
+        engine.energies.membrane): a force -D(x) v that depends on the velocity."""
+        return [e for e in self.energies if getattr(e, "has_damping", False)]
+
+    def add_damping_forces(self, x, v, f) -> None:
+        """f += -D(x) v summed over the dampers (no pin handling)."""
+        for e in self.dampers:
+            e.add_damping_forces(x, v, f)
+
+    def add_damping_product(self, x, w, out) -> None:
+        """out += D(x) w summed over the dampers (no pin handling)."""
+        for e in self.dampers:
+            e.add_damping_product(x, w, out)
+
     def forces(self, x, f) -> None:
         """f = -grad(potential): zero f, add all energies, add m g; pinned vertices get zero."""
         zero_vec3(f)

@@ -40,6 +40,16 @@ k_h = k_s / 2. With n_u = w_u/|w_u|:
 The PSD variant clips K's transverse coefficient at 0 (a compressed direction, as for springs)
 and drops the shear's s-term (Baraff and Witkin's own approximation: dC/dx^T dC/dx only).
 
+Baraff and Witkin's damping (section 4.5) pulls against the rate of each condition,
+
+    d = -k_d sum_c (dC_c/dx) dC_c/dt = -D(x) v,   D = k_d sum_c (dC_c/dx)(dC_c/dx)^T          (M3)
+
+(k_d of the stretch conditions and of the shear, N s/m). D is symmetric and positive
+semi-definite; the explicit steps add d to the forces, backward Euler takes D at the start of
+the step, D_n, into its incremental potential as 1/(2 dt) (x - x_n)^T D_n (x - x_n): the force
+-D_n v+ at the new velocity, and the Jacobian D_n/dt in its Newton matrix (their dd/dv; like
+them, the dd/dx part is left out).
+
 Kernels work per triangle (parallel, results per triangle) and gather per vertex over the
 corner incidence (entry = 3 triangle + corner), deterministic, as the hinge energy does.
 """
@@ -275,6 +285,55 @@ def gather_corner_blocks_kernel(dt: mat3_array2, offsets: int_array, entries: in
         diag[v] += acc
 
 
+@ti.func
+def condition_gradients(wu, wv, g, A):
+    """dC/dx_a of Baraff-Witkin's three conditions for the corners a = 0, 1, 2: (stretch u,
+    stretch v, shear) lists of vec3, (M2)."""
+    r = ti.sqrt(A)
+    nu_, nv_ = wu / wu.norm(), wv / wv.norm()
+    gu = [r * g[a][0] * nu_ for a in ti.static(range(3))]
+    gv = [r * g[a][1] * nv_ for a in ti.static(range(3))]
+    gs = [r * (g[a][0] * wv + g[a][1] * wu) for a in ti.static(range(3))]
+    return gu, gv, gs
+
+
+@ti.kernel
+def damping_products_kernel(x: vec3_array, tris: triangle_array, Dinv: ti.types.ndarray(dtype=mat2, ndim=1),
+                            area: scalar_array, kd_s: scalar_array, kd_h: scalar_array, w: vec3_array,
+                            yt: vec3_array2):
+    # pass 1 of out += D(x) w (M3): yt[t, a] = sum_c kd_c dC_c/dx_a (sum_b dC_c/dx_b . w_b)
+    for t in range(tris.shape[0]):
+        wu, wv, g0, g1, g2 = triangle_frame(x, tris, Dinv, t)
+        gu, gv, gs = condition_gradients(wu, wv, [g0, g1, g2], area[t])
+        ru, rv, rs = 0.0, 0.0, 0.0
+        for b in ti.static(range(3)):
+            wb = w[tris[t, b]]
+            ru += gu[b].dot(wb)
+            rv += gv[b].dot(wb)
+            rs += gs[b].dot(wb)
+        for a in ti.static(range(3)):
+            yt[t, a] = kd_s[t] * (ru * gu[a] + rv * gv[a]) + kd_h[t] * rs * gs[a]
+
+
+@ti.kernel
+def damping_blocks_kernel(x: vec3_array, tris: triangle_array, Dinv: ti.types.ndarray(dtype=mat2, ndim=1),
+                          area: scalar_array, kd_s: scalar_array, kd_h: scalar_array, out: mat3_array2):
+    # out[t, 3a + b] = D_ab = sum_c kd_c dC_c/dx_a (dC_c/dx_b)^T
+    for t in range(tris.shape[0]):
+        wu, wv, g0, g1, g2 = triangle_frame(x, tris, Dinv, t)
+        gu, gv, gs = condition_gradients(wu, wv, [g0, g1, g2], area[t])
+        for a in ti.static(range(3)):
+            for b in ti.static(range(3)):
+                out[t, 3 * a + b] = (kd_s[t] * (gu[a].outer_product(gu[b]) + gv[a].outer_product(gv[b]))
+                                     + kd_h[t] * gs[a].outer_product(gs[b]))
+
+
+@ti.kernel
+def _negate_corners(yt: vec3_array2):
+    for t, a in yt:
+        yt[t, a] = -yt[t, a]
+
+
 # --------------------------------------------------------------------------------------------
 # Set-up (numpy) and the class
 # --------------------------------------------------------------------------------------------
@@ -324,7 +383,7 @@ class MembraneEnergy(Energy):
     force_form = None
 
     def __init__(self, rest_positions, triangles, model: str = "stvk", Y=None, nu=None, k_stretch=None,
-                 k_shear=None, direction=(1.0, 0.0, 0.0)):
+                 k_shear=None, direction=(1.0, 0.0, 0.0), damping_stretch: float = 0.0, damping_shear: float = 0.0):
         if model not in MODELS:
             raise MembraneError(f"model must be one of {', '.join(MODELS)} (got {model!r})")
         X = as_points3(rest_positions, MembraneError)
@@ -345,6 +404,14 @@ class MembraneEnergy(Energy):
                 raise MembraneError(f"baraff-witkin needs k_stretch >= 0 and k_shear >= 0 (N/m) (got "
                                     f"{k_stretch!r}, {k_shear!r})")
             p0, p1 = float(k_stretch), float(k_shear)
+        for label, value in (("damping_stretch", damping_stretch), ("damping_shear", damping_shear)):
+            if not (np.isfinite(value) and value >= 0):
+                raise MembraneError(f"{label} must be finite and >= 0 (N s/m) (got {value!r})")
+        if model != "baraff-witkin" and (damping_stretch or damping_shear):
+            raise MembraneError("damping_stretch and damping_shear are Baraff-Witkin's damping of its conditions; "
+                                "use model='baraff-witkin'")
+        self.damping = (float(damping_stretch), float(damping_shear))
+        self.has_damping = any(self.damping)
         self.model, self.model_code = model, MODELS[model]
         self.Y, self.nu, self.k_stretch, self.k_shear = Y, nu, k_stretch, k_shear
         self.n_vertices = len(X)
@@ -361,6 +428,9 @@ class MembraneEnergy(Energy):
         self.p0, self.p1 = ti.ndarray(dtype=float, shape=m), ti.ndarray(dtype=float, shape=m)
         self.p0.from_numpy(np.full(m, p0, dtype=fdt))
         self.p1.from_numpy(np.full(m, p1, dtype=fdt))
+        self.kd_s, self.kd_h = ti.ndarray(dtype=float, shape=m), ti.ndarray(dtype=float, shape=m)
+        self.kd_s.from_numpy(np.full(m, self.damping[0], dtype=fdt))
+        self.kd_h.from_numpy(np.full(m, self.damping[1], dtype=fdt))
         offsets, entries = incidence(self.n_vertices, T.reshape(-1))
         self.offsets = ti.ndarray(dtype=ti.i32, shape=self.n_vertices + 1)
         self.offsets.from_numpy(offsets.astype(np.int32))
@@ -371,6 +441,7 @@ class MembraneEnergy(Energy):
         self.per_corner = ti.ndarray(dtype=ti.math.vec3, shape=(m, 3))
         self._scalars = ti.ndarray(dtype=float, shape=m)
         self._blocks = None
+        self._damping_blocks = None
         self._diag = None
         self._scratch: dict = {}
 
@@ -457,4 +528,46 @@ class MembraneEnergy(Energy):
         absrow = np.abs(self.hessian_blocks_numpy(x, psd=False)).sum(axis=3)   # (m, 9, 3)
         per_corner = absrow.reshape(-1, 3, 3, 3).sum(axis=2)                     # (m, 3, 3)
         np.add.at(rows, self.triangles_np.reshape(-1), per_corner.reshape(-1, 3))
+        return rows
+
+    # -- Baraff-Witkin damping (M3) ------------------------------------------------------------
+    def _damping_args(self) -> tuple:
+        return self.tris, self.Dinv, self.area, self.kd_s, self.kd_h
+
+    def add_damping_product(self, x, w, out) -> None:
+        """out += D(x) w (M3)."""
+        damping_products_kernel(self._vec3(x, "x"), *self._damping_args(), self._vec3(w, "w"), self.per_corner)
+        self._gather_into(out)
+
+    def add_damping_forces(self, x, v, f) -> None:
+        """f += d = -D(x) v (M3)."""
+        damping_products_kernel(self._vec3(x, "x"), *self._damping_args(), self._vec3(v, "v"), self.per_corner)
+        _negate_corners(self.per_corner)
+        self._gather_into(f)
+
+    def damping_blocks(self, x):
+        """(m, 9) mat3 ndarray of D's blocks, the layout of :meth:`hessian_blocks` (reused)."""
+        if self._damping_blocks is None:
+            self._damping_blocks = ti.ndarray(dtype=ti.math.mat3, shape=(self.n_elements, 9))
+        damping_blocks_kernel(self._vec3(x, "x"), *self._damping_args(), self._damping_blocks)
+        return self._damping_blocks
+
+    def dense_damping(self, x) -> np.ndarray:
+        """Dense (3n, 3n) D(x) (tests, small meshes)."""
+        n, T = self.n_vertices, self.triangles_np
+        B = self.damping_blocks(x).to_numpy().astype(np.float64).reshape(-1, 3, 3, 3, 3)
+        D = np.zeros((3 * n, 3 * n))
+        for a in range(3):
+            for b in range(3):
+                ia = (3 * T[:, a])[:, None] + np.arange(3)
+                ib = (3 * T[:, b])[:, None] + np.arange(3)
+                np.add.at(D, (ia[:, :, None], ib[:, None, :]), B[:, a, b])
+        return D
+
+    def damping_row_sums(self, x) -> np.ndarray:
+        """(n, 3): sum_j |D_(v,a),j| at x, the Gershgorin bound of D's rows: an explicit step must keep
+        dt D/m below 2 as well as under the stiffness' limit."""
+        rows = np.zeros((self.n_vertices, 3))
+        absrow = np.abs(self.damping_blocks(x).to_numpy().astype(np.float64)).sum(axis=3)
+        np.add.at(rows, self.triangles_np.reshape(-1), absrow.reshape(-1, 3, 3, 3).sum(axis=2).reshape(-1, 3))
         return rows

@@ -286,9 +286,13 @@ class ExplicitIntegrator:
 
     @staticmethod
     def _elastic_forces(stepper, state: State):
+        """The elastic forces at the state's x, plus the dampers' -D(x) v at its v (velocity Verlet's
+        second half kick takes them at the half-kicked velocity)."""
         f = stepper.work.vec3("f")
         zero_vec3(f)
         stepper.model.add_elastic_forces(state.x, f)
+        if stepper.dampers:
+            stepper.model.add_damping_forces(state.x, state.v, f)
         return f
 
     def __repr__(self) -> str:

@@ -229,12 +229,16 @@ class BackwardEuler:
         phi = _be_inertia(x, xn, v, model.mass_nd, model.inv_mass_nd, model.gravity_vec, 1.0 / (dt * dt),
                           self.rayleigh_alpha / dt, dt)
         phi += model.elastic_energy(x) - W_n
-        if self.rayleigh_beta > 0.0:
+        if self.rayleigh_beta > 0.0 or model.dampers:
             d, hq = work["d"], work["hq"]
             sub_into(x, xn, d)
             zero_vec3(hq)
-            model.add_hessian_product(xn, d, hq, True)
-            phi += 0.5 * self.rayleigh_beta / dt * dot_vec3(d, hq)
+            if model.dampers:   # 1/(2 dt) (x - x_n)^T D_n (x - x_n), engine.energies.membrane (M3)
+                model.add_damping_product(xn, d, hq)
+                phi += 0.5 / dt * dot_vec3(d, hq)
+            else:
+                model.add_hessian_product(xn, d, hq, True)
+                phi += 0.5 * self.rayleigh_beta / dt * dot_vec3(d, hq)
         return phi
 
     def advance(self, stepper, state: State, dt: float) -> None:
@@ -244,6 +248,10 @@ class BackwardEuler:
         if not (math.isfinite(dt) and dt > 0.0):
             raise ParameterError(f"dt must be finite and > 0 (got {dt!r})")
         model, solver = stepper.model, stepper.solver
+        damped = bool(model.dampers)
+        if damped and self.rayleigh_beta > 0.0:
+            raise ParameterError("rayleigh_beta and a membrane's Baraff-Witkin damping cannot be combined in one "
+                                 "backward-Euler step; use one of them")
         work = {k: stepper.work.vec3("be_" + k) for k in ("xn", "f", "rhs", "dx", "trial", "d", "hq")}
         x, v = state.x, state.v
         xn, f, rhs, dx, trial = work["xn"], work["f"], work["rhs"], work["dx"], work["trial"]
@@ -272,6 +280,12 @@ class BackwardEuler:
                 zero_vec3(hq)
                 model.add_hessian_product(xn, d, hq, True)
                 g2 = _be_add_scaled(rhs, hq, self.rayleigh_beta / dt, inv_mass)
+            elif damped and k > 0:   # the damping force -D_n v+ = -D_n (x - x_n)/dt
+                d, hq = work["d"], work["hq"]
+                sub_into(x, xn, d)
+                zero_vec3(hq)
+                model.add_damping_product(xn, d, hq)
+                g2 = _be_add_scaled(rhs, hq, 1.0 / dt, inv_mass)
             gnorm = math.sqrt(g2)
             info.gradient_norms.append(gnorm)
             if g0 is None:
@@ -288,7 +302,11 @@ class BackwardEuler:
             # the exact Hessian (quadratic convergence), falling back to the PSD one where it fails
             use_exact = (self.exact_near_solution and self.newton_iterations > 1 and exact_ok
                          and gnorm < EXACT_BELOW * g0)
-            if k == 0 or self.rayleigh_beta == 0.0:   # x = x_n: the damping Hessian is H(x)
+            if damped:                                 # + D_n/dt, the damping's Jacobian
+                with solver.using(stepper.solver_setup):
+                    lin = solver.solve(model, x, rhs, dx, mass_coef, hess_coef, psd=not use_exact,
+                                       extra=(1.0 / dt, xn, "damping"))
+            elif k == 0 or self.rayleigh_beta == 0.0:   # x = x_n: the damping Hessian is H(x)
                 with solver.using(stepper.solver_setup):
                     lin = solver.solve(model, x, rhs, dx, mass_coef, hess_coef, psd=not use_exact)
             else:                                      # H(x) + (beta/dt) H_n

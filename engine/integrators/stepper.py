@@ -72,6 +72,7 @@ class Stepper:
         self._key = self._energies_key()
         self.cloth = None
         self.many_steps = False
+        self.dampers = bool(getattr(self.model, "dampers", ()))   # velocity-dependent forces: the generic path
         if self.scene_run is not None:
             self.path = "scene"
             return
@@ -85,7 +86,7 @@ class Stepper:
                              f"{self.name} on energies {[e.name for e in self.model.energies]}")
         self.many_steps = spring_only and (self._requested is True or
                                            (self._requested is None and self.model.n < MANY_STEPS_BELOW))
-        if getattr(self.integrator, "fused", False) and self.name in CLOTH_METHODS:
+        if getattr(self.integrator, "fused", False) and self.name in CLOTH_METHODS and not self.dampers:
             self.cloth = cloth_stepper(self.model, work=self._cloth_work)
         self.path = "one-launch" if self.cloth is not None else "generic"
 

@@ -74,16 +74,21 @@ def _hessian_plan(model: Model, x, psd: bool = True, extra=None, blocks: dict | 
     """One callable per energy, ``add(p, q)``: q += H_e(x) p with the PSD (or exact) Hessian.
     Energies offering the "blocks" product (springs) compute their blocks here, once per solve
     (and put them in ``blocks[id(energy)]`` if a dict is given); the others use
-    add_hessian_product.  ``extra`` = (s, x2) appends q += s H_psd(x2) p (matrix-free, through a
-    work array of ``work``, or a new one)."""
+    add_hessian_product.  ``extra`` = (s, x2) appends q += s H_psd(x2) p, and (s, x2, "damping")
+    q += s D(x2) p, the dampers' matrix (engine.model.Model.dampers) (matrix-free, through a work
+    array of ``work``, or a new one)."""
     plan = []
     if extra is not None and extra[0] != 0.0:
         s, x2 = float(extra[0]), extra[1]
+        damping = extra_kind(extra) == "damping"
         t = (WorkArrays(model.n) if work is None else work).vec3("extra")
 
         def add_extra(p, q):
             zero_vec3(t)
-            model.add_hessian_product(x2, p, t, True)
+            if damping:
+                model.add_damping_product(x2, p, t)
+            else:
+                model.add_hessian_product(x2, p, t, True)
             axpy_inplace(q, t, s)
         plan.append(add_extra)
     for e in model.energies:
@@ -98,10 +103,29 @@ def _hessian_plan(model: Model, x, psd: bool = True, extra=None, blocks: dict | 
 
 
 def _scaled(extra, c: float):
-    """extra = (s, x2) of A = a M + c H(x) + s H(x2), as seen in A' = A / c; None if absent."""
+    """extra = (s, x2[, kind]) of A = a M + c H(x) + s H(x2) (or s D(x2)), as seen in A' = A / c;
+    None if absent."""
     if extra is None or float(extra[0]) == 0.0:
         return None
-    return float(extra[0]) / c, extra[1]
+    return (float(extra[0]) / c, *extra[1:])
+
+
+def extra_kind(extra) -> str:
+    """"hessian" (s H_psd(x2)) or "damping" (s D(x2)) for an extra term (s, x2[, kind])."""
+    return extra[2] if len(extra) > 2 else "hessian"
+
+
+def extra_terms(model: Model, x, psd: bool, extra) -> list:
+    """(scale, energy, blocks) of every element term of A' for the direct solvers' assembly: the
+    extra term's first (s H_psd(x2) or s D(x2)), then H(x)."""
+    terms = []
+    if extra is not None:
+        s, x2 = extra[0], extra[1]
+        if extra_kind(extra) == "damping":
+            terms += [(s, e, e.damping_blocks(x2)) for e in model.dampers if e.n_elements]
+        else:
+            terms += [(s, e, e.hessian_blocks(x2, True)) for e in model.energies if e.n_elements]
+    return terms
 
 
 def _apply_plan(model: Model, plan, a: float, p, q) -> None:

@@ -36,6 +36,8 @@ class MembranesConfig:
     k_shear: float = param(10.0, "stage 4's Baraff-Witkin shear stiffness", "N/m", ge=0.1, le=1e6)
     large_step: int = param(10, "stage 4's large step, in 1/60 s", ge=2, le=60)
     settle_time: float = param(3.0, "how long stage 4's cloth hangs", "s", ge=0.5, le=60.0)
+    damping_ratio: float = param(0.05, "stage 5's Baraff-Witkin damping, as the damping ratio it gives its wave "
+                                 "(k_d = 2 ratio sqrt(k_s rho) / k)", ge=0.01, le=0.5)
 
 
 def _validate(cfg):
@@ -60,6 +62,7 @@ LESSON = Lesson(
         ("static stretch: any Poisson's ratio, on any mesh", stages.stage_stretch),
         ("wave speeds that do not depend on direction", stages.stage_waves),
         ("a Baraff-Witkin cloth under backward Euler", stages.stage_hanging),
+        ("Baraff-Witkin damping: the decay of a mode", stages.stage_damping),
     ]),
     order=6,
     camera="top",

@@ -138,6 +138,18 @@ def draw_strip(rec, name: str, label: str, m3: M.Mesh, x, u, strain: float) -> N
     rec.mesh(X + gain * u, m3.triangles, vertex_colors=rec.colors(u[:, 1], "signed", "u_y (m)", strain * half))
 
 
+def draw_patch(rec, name: str, label: str, m3: M.Mesh, x, energy) -> None:
+    """One frame: the deformed patch, each vertex coloured by the energy per rest area of the
+    triangles around it (J/m^2)."""
+    T = m3.triangles
+    density = energy.triangle_energies(x) / energy.area_np
+    per_vertex = (np.bincount(T.ravel(), weights=np.repeat(density, 3), minlength=len(x))
+                  / np.maximum(np.bincount(T.ravel(), minlength=len(x)), 1))
+    rec.run(name, RunView(label=label, camera="top", energy=None))
+    rec.set_time(0, 0.0)
+    rec.mesh(x, T, vertex_colors=rec.colors(per_vertex, "magnitude", "W/A (J/m^2)", float(per_vertex.max())))
+
+
 def cloth_logger(m3: M.Mesh, scale: float):
     """log(rec, state): the cloth's triangles coloured by how far each vertex has fallen (m)."""
     X, T = m3.vertices, m3.triangles
@@ -151,7 +163,7 @@ def cloth_logger(m3: M.Mesh, scale: float):
 # ------------------------------------------------------------------ estimates and budget
 
 # seconds of each stage at the defaults on the reference 2-thread CPU, and how they scale
-STAGE_SECONDS = {1: 1.0, 2: 2.0, 3: 4.0, 4: 3.0}
+STAGE_SECONDS = {1: 1.0, 2: 2.0, 3: 4.0, 4: 3.0, 5: 6.0}
 
 
 def stage_seconds(cfg, stage: int) -> float:
@@ -163,12 +175,15 @@ def stage_seconds(cfg, stage: int) -> float:
         return STAGE_SECONDS[3] * (cfg.wavelength / d.wavelength) ** 3 * d.cfl / cfg.cfl
     if stage == 4:   # backward-Euler steps over the settling time on an n x n cloth
         return STAGE_SECONDS[4] * (cfg.cloth_n / d.cloth_n) ** 2 * cfg.settle_time / d.settle_time
+    if stage == 5:   # a sheet of (wavelength)^2 vertices, one period of steps ~ wavelength / cfl
+        return STAGE_SECONDS[5] * (cfg.wavelength / d.wavelength) ** 3 * d.cfl / cfg.cfl
     return STAGE_SECONDS.get(stage, 0.0)
 
 
 BUDGET = {2: StageCost("--strip-cells", "use fewer --strip-cells"),
           3: StageCost("--wavelength, --cfl", "use a shorter --wavelength or a larger --cfl"),
-          4: StageCost("--cloth-n, --settle-time", "use a smaller --cloth-n or a shorter --settle-time")}
+          4: StageCost("--cloth-n, --settle-time", "use a smaller --cloth-n or a shorter --settle-time"),
+          5: StageCost("--wavelength, --cfl", "use a shorter --wavelength or a larger --cfl")}
 
 
 def check_work(cfg) -> None:
@@ -177,3 +192,47 @@ def check_work(cfg) -> None:
 
 def announce(ctx, stage: int) -> None:
     _budget.announce(ctx, stage_seconds(ctx.cfg, stage))
+
+
+# ------------------------------------------------------------------ the damped wave (stage 5)
+
+def fit_decay(t: np.ndarray, a: np.ndarray, w0: float) -> tuple:
+    """(w, gamma) of a(t) = a(0) exp(-gamma t) (cos w t + b sin w t), least squares over all samples
+    from the guess w0 (b free: a damped mode started from rest has b = gamma/w, a scheme's discrete
+    map its own)."""
+    from scipy.optimize import least_squares
+
+    r = a / a[0]
+
+    def resid(p):
+        return np.exp(-p[1] * t) * (np.cos(p[0] * t) + p[2] * np.sin(p[0] * t)) - r
+
+    sol = least_squares(resid, [w0, 0.0, 0.0], x_scale=[w0, w0, 1.0], xtol=1e-14, ftol=1e-14, gtol=1e-14)
+    return float(sol.x[0]), float(sol.x[1])
+
+
+def damped_wave(ctx, name: str, model: Model, m3: M.Mesh, k: float, ctr, region, dt: float, n_steps: int,
+                integrator: str, label: str) -> tuple:
+    """A standing P wave along x (the warp u) started from rest on a damped Baraff-Witkin sheet;
+    returns (times, amplitudes) read over ``region`` by engine.waves.ModeProbe."""
+    from engine.waves import ModeProbe
+
+    from .._scene import simulate
+    from ..area_springs.scene import DRAWN_AMPLITUDE, sheet_drawer
+
+    cfg = ctx.cfg
+    probe = ModeProbe(model.X, model.mass, np.array([1.0, 0.0]), np.array([1.0, 0.0]), k, ctr, region)
+    A = cfg.strain / k
+    state = model.make_state(model.X + probe.displacement(A))
+    times, amps = [], []
+
+    def observe(step, st):
+        times.append(step * dt)
+        amps.append(probe.amplitude(st.x.to_numpy()))
+    draw = sheet_drawer(m3)
+    gain = DRAWN_AMPLITUDE * (2 * math.pi / k) / A
+    log = lambda rec, st: draw(rec, st.x.to_numpy().astype(np.float64), gain, np.array([1.0, 0.0, 0.0]), "u_x (m)", A)
+    simulate(ctx, name, model, state, dt, n_steps, integrator=integrator, every=1, observe=observe, log=log,
+             energy_every=1, fixed=True, view=RunView(label=label, camera="top", span=n_steps * dt),
+             **({"solver": "cholesky"} if integrator == "backward-euler" else {}))
+    return np.asarray(times), np.asarray(amps)

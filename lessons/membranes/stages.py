@@ -15,8 +15,8 @@ from lessons.app.blueprint import RunView
 from .._framework import Experiment
 from .._scene import simulate
 from ..area_springs.scene import RUN_PERIODS, sheet_drawer, square_domain_cells, standing_wave, unit
-from .scene import (STRIPS, announce, cloth_logger, hanging_cloth, membrane_model, plane_speeds, pull, springs_for,
-                    strip, uniaxial_theory)
+from .scene import (STRIPS, announce, cloth_logger, draw_patch, hanging_cloth, membrane_model, plane_speeds, pull,
+                    springs_for, strip, uniaxial_theory)
 
 
 # ---------------------------------------------------------------------------- stage 1
@@ -78,6 +78,8 @@ def stage_triangles(ctx):
         W_theory = m3.total_measure * _psi(model, F, p)
         Q, _ = np.linalg.qr(rng.standard_normal((3, 3)))
         slug = "stvk" if model == "stvk" else "bw"
+        if ctx.rec.enabled:
+            draw_patch(ctx.rec, f"{slug}_patch", f"{title}: the randomly deformed patch", m3, x, energy)
         ctx.progress(f"{title}: exact Hessian's eigenvalues {exact.min():.3g} .. {exact.max():.3g}, PSD variant's "
                      f"from {psd.min():.3g}")
         exps += [
@@ -259,3 +261,101 @@ def stage_hanging(ctx):
                        f"energy lost)", 1e-9, rise, 0, "<=", id=f"bw-energy-decreases-dt{factor}", reason=reason),
         ]
     return exps
+
+
+# ---------------------------------------------------------------------------- stage 5
+
+DECAY_TOL = 5e-3      # relative, on the fitted decay rate
+FREQUENCY_TOL = 1e-3  # relative, on the fitted frequency
+BE_OMEGA_DT = 0.5     # the backward-Euler run's w dt: its own damping is then about 5x the physical one
+BE_STEPS = 4          # backward Euler's steps, read one by one (later the sheet's edges reach the disc: the
+                      # implicit solve couples the whole sheet at every step)
+BE_SEQUENCE_TOL = 1e-3
+
+
+def be_sequence(w2: float, c: float, dt: float, n: int) -> np.ndarray:
+    """a_n / a_0 of one mode (stiffness w2 = w^2, damping c per unit mass) under backward Euler from
+    rest: v+ = (v - dt w2 x) / (1 + c dt + w2 dt^2), x+ = x + dt v+."""
+    x, v, out = 1.0, 0.0, [1.0]
+    for _ in range(n):
+        v = (v - dt * w2 * x) / (1 + c * dt + w2 * dt * dt)
+        x = x + dt * v
+        out.append(x)
+    return np.asarray(out)
+
+
+def vv_rates(w2: float, c: float, dt: float) -> tuple:
+    """(w, gamma) of one mode (stiffness w2 = w^2, damping c per unit mass) under the engine's velocity
+    Verlet, the damping force taken at the half-kicked velocity: v* = v + dt/2 a, x+ = x + dt v*,
+    a+ = -w2 x+ - c v*, v+ = v* + dt/2 a+; from the step map's complex eigenvalue."""
+    def step(s):
+        x, v, a = s
+        vh = v + 0.5 * dt * a
+        x1 = x + dt * vh
+        a1 = -w2 * x1 - c * vh
+        return np.array([x1, vh + 0.5 * dt * a1, a1])
+    lam = np.linalg.eigvals(np.column_stack([step(e) for e in np.eye(3)]))
+    z = lam[np.argmax(np.abs(lam.imag))]
+    return abs(math.atan2(z.imag, z.real)) / dt, -math.log(abs(z)) / dt
+
+
+def stage_damping(ctx):
+    from .scene import damped_wave, fit_decay
+
+    cfg = ctx.cfg
+    announce(ctx, 5)
+    lam = float(cfg.wavelength)
+    k = 2 * math.pi / lam
+    r = 0.15 * lam
+    ks, rho = cfg.Y, cfg.rho
+    w0 = k * math.sqrt(ks / rho)                      # the undamped P wave along the warp: nu = 0, modulus k_s
+    kd = 2 * cfg.damping_ratio * math.sqrt(ks * rho) / k   # k_d giving the damping ratio asked for at this k
+    gamma = kd * k * k / (2 * rho)                    # (M3) on this wave: rho u'' = k_s u_xx + k_d u_xx'
+    k2h = (2 * math.sin(k / 2)) ** 2                  # the lattice's k^2 along its axis (spacing 1 m, lumped masses)
+    w2h, ch = ks * k2h / rho, kd * k2h / rho          # its w0^2 and damping per unit mass on this wave
+    # the sheet reaches two wavelengths beyond the disc: a margin of one period's travel (one wavelength) still
+    # lets the free edges disturb the disc's amplitude by ~1e-3 within the period (2% of the fitted decay)
+    half = r + 2.0 * lam + 2.0
+    n = square_domain_cells(half, 1.0) + 1
+    m2 = M.right_triangle_grid(n, n, n - 1.0, n - 1.0, "alternating")
+    m3 = M.embed_3d(m2)
+    ctr = np.full(2, 0.5 * (n - 1))
+    region = np.linalg.norm(m2.vertices - ctr, axis=1) <= r
+    model, _ = membrane_model(m3, rho, "baraff-witkin", k_stretch=ks, k_shear=0.5 * ks, damping_stretch=kd,
+                              damping_shear=0.5 * kd)
+    ctx.progress(f"k_d = {kd:.4g} N s/m for a damping ratio {cfg.damping_ratio:g} at the wavelength {lam:g} m: "
+                 f"decay rate {gamma:.4g} 1/s, w0 = {w0:.4g} rad/s")
+    damper = model.dampers[0]
+    c_max = float((damper.damping_row_sums(model.X) / model.mass[:, None]).max())   # the fastest-damped mode's c
+    dt = cfg.cfl * min(stable_dt_estimate(model), 2.0 / c_max)
+    if 2.0 / c_max < stable_dt_estimate(model):
+        ctx.progress(f"the damping of the shortest waves (c up to {c_max:.3g} 1/s) limits the explicit step to "
+                     f"{2.0 / c_max:.3g} s, below the stiffness' {stable_dt_estimate(model):.3g} s")
+    n_steps = int(math.ceil(2 * math.pi / w0 / dt))
+    t, a = damped_wave(ctx, "damped_verlet", model, m3, k, ctr, region, dt, n_steps, "velocity-verlet",
+                       f"Baraff-Witkin sheet, damping ratio {cfg.damping_ratio:g}: P wave along the warp, velocity "
+                       "Verlet")
+    w_m, g_m = fit_decay(t, a, w0)
+    w_s, g_s = vv_rates(w2h, ch, dt)
+    dt_be = BE_OMEGA_DT / w0
+    t2, a2 = damped_wave(ctx, "damped_backward_euler", model, m3, k, ctr, region, dt_be, BE_STEPS, "backward-euler",
+                         f"the same wave, backward Euler at w dt = {BE_OMEGA_DT:g}")
+    predicted = be_sequence(w2h, ch, dt_be, BE_STEPS)
+    undamped = be_sequence(w2h, 0.0, dt_be, BE_STEPS)
+    seen = a2 / a2[0]
+    dev = float(np.abs(seen - predicted).max())
+    ctx.progress(f"velocity Verlet: fitted w {w_m:.6g} rad/s (its map {w_s:.6g}), decay {g_m:.5g} 1/s (its map "
+                 f"{g_s:.5g}, the continuum {gamma:.5g}); backward Euler at dt = {dt_be:.3g} s, amplitude after "
+                 f"each step: {np.round(seen[1:], 5).tolist()}, predicted {np.round(predicted[1:], 5).tolist()} "
+                 f"(undamped {np.round(undamped[1:], 5).tolist()})")
+    return [
+        Experiment(f"damping ratio {cfg.damping_ratio:g}: the wave decays as velocity Verlet's map predicts for this "
+                   f"mode (continuum k_d k^2 / (2 rho) = {gamma:.4g} 1/s; the scheme takes the damping at the "
+                   "half-kicked velocity)", g_s, g_m, DECAY_TOL, "rel", "1/s", id="damping-decay-rate"),
+        Experiment("the damped wave's frequency is the map's (about sqrt(w0^2 - gamma^2) on the lattice)", w_s, w_m,
+                   FREQUENCY_TOL, "rel", "rad/s", id="damped-frequency"),
+        Experiment(f"backward Euler at w dt = {BE_OMEGA_DT:g}: the first {BE_STEPS} steps follow its damped map "
+                   f"(M + dt C + dt^2 K) v+ = M v - dt K x (max |a_n/a_0 - predicted|; undamped it would be off by "
+                   f"{float(np.abs(undamped - predicted).max()):.2g})", 0.0, dev, BE_SEQUENCE_TOL, "abs",
+                   id="damping-backward-euler"),
+    ]

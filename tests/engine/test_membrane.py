@@ -141,3 +141,92 @@ def test_a_degenerate_rest_triangle_is_named():
     X = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [0, 1, 0]], float)
     with pytest.raises(MembraneError, match=r"triangle 0 \[0, 1, 2\] has zero rest area"):
         MembraneEnergy(X, [[0, 1, 2], [0, 1, 3]], "stvk", Y=1.0, nu=0.3)
+
+
+# -------------------------------------------------------------------- Baraff-Witkin damping (M3)
+
+def _conditions(e, x):
+    """(m, 3) [C_u, C_v, C_s] per triangle, written out in numpy from the rest frames."""
+    T = e.triangles_np
+    d1, d2 = x[T[:, 1]] - x[T[:, 0]], x[T[:, 2]] - x[T[:, 0]]
+    Di = e.Dinv_np
+    wu = d1 * Di[:, 0, 0, None] + d2 * Di[:, 1, 0, None]
+    wv = d1 * Di[:, 0, 1, None] + d2 * Di[:, 1, 1, None]
+    r = np.sqrt(e.area_np)
+    return np.stack([r * (np.linalg.norm(wu, axis=1) - 1), r * (np.linalg.norm(wv, axis=1) - 1),
+                     r * np.einsum("ij,ij->i", wu, wv)], axis=1)
+
+
+def test_damping_is_minus_d_v_with_d_the_conditions_rates_squared():
+    """v^T D v = sum k_d (dC/dt)^2, dC/dt by central differences of the conditions along v; the
+    force is -D v; D is symmetric PSD and its blocks, products and dense form agree."""
+    m3 = patch(1)
+    kd = (0.7, 0.2)
+    e = MembraneEnergy.from_mesh(m3, "baraff-witkin", k_stretch=3.0, k_shear=1.0, damping_stretch=kd[0],
+                                 damping_shear=kd[1])
+    rng = np.random.default_rng(5)
+    x = m3.vertices + 0.1 * rng.standard_normal(m3.vertices.shape)
+    v = rng.standard_normal(x.shape)
+    eps = 1e-6
+    rates = (_conditions(e, x + eps * v) - _conditions(e, x - eps * v)) / (2 * eps)
+    dissipation = kd[0] * np.sum(rates[:, :2] ** 2) + kd[1] * np.sum(rates[:, 2] ** 2)
+    D = e.dense_damping(x)
+    assert v.reshape(-1) @ D @ v.reshape(-1) == pytest.approx(dissipation, rel=1e-8)
+    f = np.zeros_like(x)
+    e.add_damping_forces(x, v, f)
+    assert np.abs(f.reshape(-1) + D @ v.reshape(-1)).max() <= 1e-13 * np.abs(D).max() * np.abs(v).max() * 10
+    out = np.zeros_like(x)
+    e.add_damping_product(x, v, out)
+    assert np.array_equal(out, -f)
+    assert np.abs(D - D.T).max() == 0.0 and np.linalg.eigvalsh(D).min() >= -1e-14 * np.abs(D).max()
+
+
+def _damped_cloth(solver_seed=0):
+    m3 = M.embed_3d(M.right_triangle_grid(5, 5, 1.0, 1.0, "alternating"), plane="xz")
+    top = np.flatnonzero(m3.vertices[:, 2] >= 1.0 - 1e-9)
+    model = Model(m3.vertices, mass=M.lumped_masses(m3, 0.1), pinned=top, gravity=(0.0, 0.0, -9.81))
+    energy = MembraneEnergy.from_mesh(m3, "baraff-witkin", k_stretch=50.0, k_shear=5.0, damping_stretch=2.0,
+                                      damping_shear=0.5)
+    model.add_energy(energy)
+    v0 = 0.3 * np.random.default_rng(solver_seed).standard_normal(m3.vertices.shape) * model.free[:, None]
+    return model, energy, v0
+
+
+@pytest.mark.parametrize("solver", ["cholesky", "pcg"])
+def test_a_damped_backward_euler_step_solves_its_equations(solver):
+    """M (v+ - v_n) = dt (f(x+) + M g - D(x_n) v+), x+ = x_n + dt v+, to the Newton tolerance."""
+    from engine.integrators.implicit import BackwardEuler
+    from engine.integrators.stepper import Stepper
+    model, energy, v0 = _damped_cloth()
+    state = model.make_state(model.X, v0)
+    dt = 0.05
+    Stepper(model, BackwardEuler(solver=solver, tol=1e-12, newton_iterations=30, newton_tol=1e-12)).step(state, dt, 1)
+    x1, v1 = state.numpy().x, state.numpy().v
+    f = np.zeros_like(x1)
+    energy.add_forces(x1, f)
+    d = np.zeros_like(x1)
+    energy.add_damping_forces(model.X, v1, d)
+    r = model.mass[:, None] * (v1 - v0) - dt * (f + model.mass[:, None] * np.array([0.0, 0.0, -9.81]) + d)
+    r[~model.free] = 0.0
+    assert np.abs(r).max() <= 1e-9 * dt * 9.81 * model.mass.max()
+    assert np.abs(x1 - (model.X + dt * v1))[model.free].max() <= 1e-14
+
+
+def test_damping_drains_energy_at_the_rate_v_d_v_under_an_explicit_step():
+    from engine.integrators.stepper import Stepper
+    from engine import diagnostics
+    model, energy, v0 = _damped_cloth(1)
+    state = model.make_state(model.X, v0)
+    E0 = diagnostics.total_energy(model, state)
+    rate = v0.reshape(-1) @ energy.dense_damping(model.X) @ v0.reshape(-1)
+    dt = 1e-7
+    Stepper(model, "symplectic-euler").step(state, dt, 1)
+    assert (diagnostics.total_energy(model, state) - E0) / dt == pytest.approx(-rate, rel=1e-3)
+
+
+def test_damping_is_refused_where_it_is_not_defined():
+    m3 = patch(0)
+    with pytest.raises(MembraneError, match="use model='baraff-witkin'"):
+        MembraneEnergy.from_mesh(m3, "stvk", Y=1.0, nu=0.3, damping_stretch=1.0)
+    with pytest.raises(MembraneError, match="damping_shear must be finite and >= 0"):
+        MembraneEnergy.from_mesh(m3, "baraff-witkin", k_stretch=1.0, k_shear=1.0, damping_shear=-1.0)

@@ -30,6 +30,13 @@ def test_every_claim_holds_at_the_defaults():
     assert rows["springs-poisson-equilateral"]["measured"] == pytest.approx(1 / 3, rel=2e-2)
     assert rows["springs-anisotropic"]["measured"] > 1.5      # springs: 73% faster along one diagonal
     assert rows["stvk-isotropic"]["measured"] < 5e-3          # the continuum triangle: the same in every direction
+    assert rows["damping-decay-rate"]["measured"] == pytest.approx(0.05 * 2 * 3.14159265 / 32, rel=1e-2)
+
+
+def test_a_stronger_damping_decays_faster_as_predicted():
+    passed, rows = run(MembranesConfig(damping_ratio=0.2), [5])
+    assert passed, [(k, r["measured"], r["theory"]) for k, r in rows.items() if not r["passed"]]
+    assert rows["damping-decay-rate"]["measured"] == pytest.approx(0.2 * 2 * 3.14159265 / 32, rel=1e-2)
 
 
 @pytest.mark.parametrize("nu", [0.1, 0.42])
