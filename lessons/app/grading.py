@@ -4,8 +4,10 @@ For each lesson checked: the student's module ``DIR/<lesson id with _>.py`` is r
 with an empty body is one line "not written yet"; the written ones are checked on their own (the
 lesson's ``exercise.TASKS``: against the lesson's formula, forces and Hessians against finite
 differences); then the lesson's own stages run with the student's functions in the engine's
-place. Every check runs in a child process (lessons.app.grading_child) with a time limit, so a
-student's error is one line naming the function and an endless loop is stopped. The claim table
+place. The function checks run in one child process and the stages in another
+(lessons.app.grading_child), each function and each stage under a time limit (a child stopped or
+crashed is started again for the rest), so a student's error is one line naming the function and an
+endless loop is stopped. The claim table
 is the lessons' own, ``--results`` the same JSON as ``run --results``. Exit 0 when every claim
 passes, 1 when one fails, 2 for bad input.
 """
@@ -200,31 +202,55 @@ class Grader:
         self.rows += rows
         self._print_table("your functions, each on its own", rows)
 
-    def stage(self, index: int) -> None:
-        title = self.lesson.stages[index - 1].title
-        needed = [t.name for t in self.tasks if not t.stages or index in t.stages]
-        missing = [n for n in needed if n not in self.usable]
-        if missing:
-            row = _failure(self.lesson.id, index, f"stage{index}-ran", f"stage {index} ran with your functions",
-                           f"not run: it needs {', '.join(missing)}, which cannot be used yet (see above)")
-            self.rows.append(row)
-            self._print_table(f"stage {index}: {title}", [row])
-            return
-        child = _Child(self.lesson.id, self.path, ["stage", str(index), *needed], self.limit, self.workdir)
-        finished = child.wait()
-        child.close()
-        result = next((l for l in child.lines if l.get("stage") == index or "error" in l), None)
-        if result is not None and "rows" in result:
-            rows = result["rows"]
-        else:
-            why = (result["error"] if result is not None else
-                   f"stopped after {self.limit:g} s (an endless loop in one of {', '.join(needed)}?)" if not finished
-                   else child.crash_text())
-            rows = [_failure(self.lesson.id, index, f"stage{index}-ran", f"stage {index} ran with your functions", why)]
-        for r in rows:
-            r["stage_title"] = title
-        self.rows += rows
-        self._print_table(f"stage {index}: {title}", rows, hint=f" (this stage ran on your {', '.join(needed)})")
+    def _needed(self, index: int) -> list:
+        return [t.name for t in self.tasks if not t.stages or index in t.stages]
+
+    def stages(self, indices: list) -> None:
+        """The lesson's stages ``indices`` with the student's functions in the engine's place, in one
+        child process (started again after a stage that was stopped or crashed); a stage that needs
+        a function which cannot be used is not run."""
+        found: dict = {}
+        runnable = []
+        for index in indices:
+            missing = [n for n in self._needed(index) if n not in self.usable]
+            if missing:
+                found[index] = [_failure(self.lesson.id, index, f"stage{index}-ran",
+                                         f"stage {index} ran with your functions",
+                                         f"not run: it needs {', '.join(missing)}, which cannot be used yet "
+                                         f"(see above)")]
+            else:
+                runnable.append(index)
+        installed = [t.name for t in self.tasks if any(t.name in self._needed(i) for i in runnable)]
+        todo = runnable
+        while todo:
+            child = _Child(self.lesson.id, self.path, ["stages", ",".join(map(str, todo)), *installed], self.limit,
+                           self.workdir)
+            finished = child.wait()
+            child.close()
+            results = {line["stage"]: line for line in child.lines if "stage" in line}
+            broken = next((line["error"] for line in child.lines if "error" in line and "stage" not in line), "")
+            left = []
+            for position, index in enumerate(todo):
+                fail = lambda why: [_failure(self.lesson.id, index, f"stage{index}-ran",  # noqa: E731
+                                             f"stage {index} ran with your functions", why)]
+                if broken:
+                    found[index] = fail(broken)
+                elif index in results:
+                    found[index] = results[index].get("rows") or fail(results[index]["error"])
+                elif any(line.get("start") == f"stage {index}" for line in child.lines) or position == 0:
+                    found[index] = fail(f"stopped after {self.limit:g} s (an endless loop in one of "
+                                        f"{', '.join(self._needed(index))}?)" if not finished else child.crash_text())
+                    left = todo[position + 1:]
+                    break
+            todo = left
+        for index in indices:
+            title = self.lesson.stages[index - 1].title
+            rows = found[index]
+            for r in rows:
+                r["stage_title"] = title
+            self.rows += rows
+            hint = "" if index not in runnable else f" (this stage ran on your {', '.join(self._needed(index))})"
+            self._print_table(f"stage {index}: {title}", rows, hint=hint)
 
 
 def check(argv: list[str], out=sys.stdout) -> int:
@@ -263,8 +289,7 @@ def check(argv: list[str], out=sys.stdout) -> int:
             grader = Grader(lesson, solution, args.time_limit, out, Path(work))
             grader.functions()
             if not args.functions_only:
-                for index in args.stage or range(1, len(lesson.stages) + 1):
-                    grader.stage(index)
+                grader.stages(list(args.stage or range(1, len(lesson.stages) + 1)))
             rows += grader.rows
     failed = sum(not r["passed"] for r in rows)
     out.write(f"\n{len(rows) - failed} of {len(rows)} claims passed"

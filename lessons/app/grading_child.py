@@ -2,13 +2,14 @@
 it at its time limit).
 
     python -m lessons.app.grading_child LESSON SOLUTION_FILE OUT_FILE units NAME...
-    python -m lessons.app.grading_child LESSON SOLUTION_FILE OUT_FILE stage N NAME...
+    python -m lessons.app.grading_child LESSON SOLUTION_FILE OUT_FILE stages N1,N2,... NAME...
 
-``units``: each named function's own checks, one after the other. ``stage``: the lesson's stage N
-with the named functions in the engine's place. Every line of OUT_FILE is one JSON object:
+``units``: each named function's own checks, one after the other. ``stages``: the lesson's stages,
+one after the other, with the named functions in the engine's place. Every line of OUT_FILE is one JSON object:
 ``{"start": name}`` before a function's checks (so that a time-out names the function),
 ``{"task": name, "rows": [...]}`` or ``{"task": name, "error": "one line"}`` after them,
-``{"stage": N, "rows": [...]}`` or ``{"stage": N, "error": ...}`` for a stage.
+``{"start": "stage N"}`` before a stage, ``{"stage": N, "rows": [...]}`` or ``{"stage": N, "error": ...}``
+after it.
 """
 import io
 import json
@@ -54,7 +55,7 @@ def main(argv: list[str]) -> int:
                 except Exception as exc:  # noqa: BLE001
                     _line(out, {"task": name, "error": _one_line(exc, name)})
             return 0
-        stage = int(rest[0])
+        stages = [int(s) for s in rest[0].split(",")]
         names = rest[1:]
         load_before_swap(f"lessons.{lesson.id.replace('-', '_')}")
         module = exercise_module(lesson)
@@ -64,13 +65,16 @@ def main(argv: list[str]) -> int:
             module.finish_install()
         from .._framework import run_lesson
         from .recorder import NullRecorder
-        rows: list = []
-        try:
-            run_lesson(lesson, lesson.config(), NullRecorder(), [stage], out=io.StringIO(), err=io.StringIO(),
-                       quiet=True, results=rows)
-            _line(out, {"stage": stage, "rows": rows})
-        except Exception as exc:  # noqa: BLE001
-            _line(out, {"stage": stage, "error": _one_line(exc, f"stage {stage}")})
+        cfg = lesson.config()
+        for stage in stages:
+            _line(out, {"start": f"stage {stage}"})
+            rows: list = []
+            try:
+                run_lesson(lesson, cfg, NullRecorder(), [stage], out=io.StringIO(), err=io.StringIO(), quiet=True,
+                           results=rows)
+                _line(out, {"stage": stage, "rows": rows})
+            except Exception as exc:  # noqa: BLE001
+                _line(out, {"stage": stage, "error": _one_line(exc, f"stage {stage}")})
     return 0
 
 
