@@ -122,6 +122,18 @@ def substitute(original, replacement) -> int:
 
 # ------------------------------------------------------------------ checks
 
+def call_student(name: str, fn, *args):
+    """``fn(*args)`` (a kernel built around the student's function ``name``, or the function
+    itself); any error but a StudentError becomes one StudentError line naming the function."""
+    try:
+        return fn(*args)
+    except StudentError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - a Taichi compile or run error, or the student's own
+        text = " ".join(str(exc).split())
+        raise StudentError(f"{name}: could not be compiled or run in a kernel: {text[:200]}") from None
+
+
 def deviation(measured: np.ndarray, reference: np.ndarray) -> float:
     """max |measured - reference| / max |reference| (inf where the measured has NaN or inf)."""
     measured, reference = np.asarray(measured, float), np.asarray(reference, float)

@@ -153,3 +153,13 @@ def rod_node_strain(x: np.ndarray, p: np.ndarray) -> np.ndarray:
     two segments), for colouring a rod."""
     s = np.diff(x) / np.diff(p) - 1.0
     return np.concatenate([[s[0]], 0.5 * (s[1:] + s[:-1]), [s[-1]]])
+
+
+def middle_strains(X: np.ndarray, u: np.ndarray, x0: float, x1: float) -> tuple:
+    """(eps_xx, eps_yy) fitted from the displacements ``u`` of the middle fifth of a strip reaching
+    from x0 to x1 along x, where a strip pulled by its clamped ends is in uniaxial stress."""
+    mid = np.abs(X[:, 0] - 0.5 * (x0 + x1)) <= 0.1 * (x1 - x0)
+    A = np.stack([np.ones(mid.sum()), X[mid, 0], X[mid, 1]], axis=1)
+    exx = np.linalg.lstsq(A, u[mid, 0], rcond=None)[0][1]
+    eyy = np.linalg.lstsq(A, u[mid, 1], rcond=None)[0][2]
+    return exx, eyy

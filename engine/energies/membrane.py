@@ -513,8 +513,12 @@ class MembraneEnergy(Energy):
         return self.hessian_blocks(x, psd).to_numpy().astype(np.float64)
 
     def dense_hessian(self, x, psd: bool = True) -> np.ndarray:
+        return self._dense(self.hessian_blocks_numpy(x, psd))
+
+    def _dense(self, blocks: np.ndarray) -> np.ndarray:
+        """Dense (3n, 3n) matrix from per-triangle blocks (m, 9, 3, 3) (tests, small meshes)."""
         n, T = self.n_vertices, self.triangles_np
-        B = self.hessian_blocks_numpy(x, psd).reshape(-1, 3, 3, 3, 3)
+        B = blocks.reshape(-1, 3, 3, 3, 3)
         H = np.zeros((3 * n, 3 * n))
         for a in range(3):
             for b in range(3):
@@ -554,15 +558,7 @@ class MembraneEnergy(Energy):
 
     def dense_damping(self, x) -> np.ndarray:
         """Dense (3n, 3n) D(x) (tests, small meshes)."""
-        n, T = self.n_vertices, self.triangles_np
-        B = self.damping_blocks(x).to_numpy().astype(np.float64).reshape(-1, 3, 3, 3, 3)
-        D = np.zeros((3 * n, 3 * n))
-        for a in range(3):
-            for b in range(3):
-                ia = (3 * T[:, a])[:, None] + np.arange(3)
-                ib = (3 * T[:, b])[:, None] + np.arange(3)
-                np.add.at(D, (ia[:, :, None], ib[:, None, :]), B[:, a, b])
-        return D
+        return self._dense(self.damping_blocks(x).to_numpy().astype(np.float64))
 
     def damping_row_sums(self, x) -> np.ndarray:
         """(n, 3): sum_j |D_(v,a),j| at x, the Gershgorin bound of D's rows: an explicit step must keep

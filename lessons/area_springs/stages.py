@@ -19,6 +19,7 @@ from engine.waves import cauchy_born_tensor, christoffel, max_speed, relaxed_sti
 from engine.theory.schemes import backward_euler_damping_rate as be_damping_rate
 
 from .._framework import Experiment
+from .._measure import middle_strains
 from .scene import (RUN_PERIODS, STRIPS, announce, area_model, bulk_tensor, draw_strip, eq_sheet, sheet_drawer,
                     solid_drawer, square_domain_cells, standing_wave, unit, wave_time)
 
@@ -397,23 +398,13 @@ def _pull(ctx, name: str, m2: M.Mesh, end_width: float, unsolved: list):
                         f"after {res.iterations} Newton steps ({res.message})")
     u = res.x - X
     width = X[:, 1].max() - X[:, 1].min()
-    exx, eyy = _middle_strains(X, u, x0, x1)
+    exx, eyy = middle_strains(X, u, x0, x1)
     F = res.reactions[right, 0].sum()
     ctx.progress(f"{name}: {res.iterations} Newton steps, residual {res.residual:.2g}; eps_xx {exx:.6g} in the middle "
                  f"(nominal {cfg.strain:g}), eps_yy {eyy:.6g}, pin force {F:.6g} N")
     if ctx.rec.enabled:
         draw_strip(ctx.rec, name, m3, res.x, u, cfg.strain)
     return -eyy / exx, F / (width * exx), F / (width * cfg.strain)
-
-
-def _middle_strains(X, u, x0, x1):
-    """(eps_xx, eps_yy) fitted from the displacements of the middle fifth of the strip, where it
-    is in uniaxial stress."""
-    mid = np.abs(X[:, 0] - 0.5 * (x0 + x1)) <= 0.1 * (x1 - x0)
-    A = np.stack([np.ones(mid.sum()), X[mid, 0], X[mid, 1]], axis=1)
-    exx = np.linalg.lstsq(A, u[mid, 0], rcond=None)[0][1]
-    eyy = np.linalg.lstsq(A, u[mid, 1], rcond=None)[0][2]
-    return exx, eyy
 
 
 # ---------------------------------------------------- shared by the stages: reasons, backward Euler's claims

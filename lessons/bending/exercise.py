@@ -10,7 +10,7 @@ import taichi as ti
 
 from engine.energies import hinge as Hg
 from engine.fields import scalar_array, vec3_array
-from .._exercise import TI_FUNC, Sampler, StudentError, Task, agreement, central_difference, deviation, \
+from .._exercise import call_student, TI_FUNC, Sampler, Task, agreement, central_difference, deviation, \
     factor_text, first_bad, ratio, substitute
 
 
@@ -63,17 +63,9 @@ def _frames(P):
     return P[:, 1] - P[:, 0], P[:, 2] - P[:, 0], P[:, 3] - P[:, 0]
 
 
-def _called(name, fn, *args):
-    try:
-        return fn(*args)
-    except Exception as exc:  # a Taichi compile or run error of the student's function
-        raise StudentError(f"{name}: could not be compiled or run in a kernel: {' '.join(str(exc).split())[:200]}") \
-            from None
-
-
 def check_angle(func) -> list:
     P = _hinges()
-    got = _called("dihedral_angle", _angle_call(func), *_frames(P))
+    got = call_student("dihedral_angle", _angle_call(func), *_frames(P))
     ref = _angle_call(Hg.dihedral_angle)(*_frames(P))
     dev = deviation(got, ref)
     tol = 1e-12
@@ -97,7 +89,7 @@ def check_angle(func) -> list:
 
 def check_gradient(func) -> list:
     P = _hinges(seed=10)
-    got = _called("dihedral_angle_gradient", _gradient_call(func), *_frames(P))
+    got = call_student("dihedral_angle_gradient", _gradient_call(func), *_frames(P))
     angle = _angle_call(Hg.dihedral_angle)
     ref = central_difference(lambda flat: angle(*_frames(flat.reshape(-1, 4, 3))), P.reshape(len(P), 12), 1e-6)
     ref = ref.reshape(len(P), 4, 3)

@@ -12,17 +12,8 @@ import taichi as ti
 
 from engine.fields import scalar_array, vec3_array
 from engine.integrators import implicit as I
-from .._exercise import NUMPY, TI_FUNC, Sampler, StudentError, Task, agreement, deviation, factor_text, \
+from .._exercise import call_student, NUMPY, TI_FUNC, Sampler, StudentError, Task, agreement, deviation, factor_text, \
     first_bad, ratio, substitute
-
-
-def _called(name, fn, *args):
-    try:
-        return fn(*args)
-    except StudentError:
-        raise
-    except Exception as exc:  # noqa: BLE001 - a compile or run error of the student's function
-        raise StudentError(f"{name}: could not be compiled or run: {' '.join(str(exc).split())[:200]}") from None
 
 
 def _vertices(n: int = 32, seed: int = 4):
@@ -39,7 +30,7 @@ def check_residual(func) -> list:
             out[i] = func(f[i], m[i], x[i], xn[i], v[i], dt[i])
     s = _vertices()
     got = np.zeros_like(s["f"])
-    _called("newton_residual", run, s["f"], s["m"], s["x"], s["xn"], s["v"], s["dt"], got)
+    call_student("newton_residual", run, s["f"], s["m"], s["x"], s["xn"], s["v"], s["dt"], got)
     dt, m = s["dt"][:, None], s["m"][:, None]
     inertia = m * (s["x"] - s["xn"] - dt * s["v"]) / dt ** 2
     ref = s["f"] - inertia
@@ -106,7 +97,7 @@ def check_velocity(func) -> list:
             out[i] = func(x[i], xn[i], dt[i])
     s = _vertices(seed=12)
     got = np.zeros_like(s["x"])
-    _called("step_velocity", run, s["x"], s["xn"], s["dt"], got)
+    call_student("step_velocity", run, s["x"], s["xn"], s["dt"], got)
     ref = (s["x"] - s["xn"]) / s["dt"][:, None]
     dev = deviation(got, ref)
     tol = 1e-13

@@ -17,6 +17,7 @@ from lessons.app.blueprint import RunView
 
 from .. import _budget
 from .._budget import StageCost, check_stages
+from .._measure import middle_strains
 from ..area_springs.scene import area_model
 
 STRETCH_TOL = 1e-9   # the static stretch's residual (net force / weight scale)
@@ -60,16 +61,6 @@ def uniaxial_theory(model: str, Y_or_ks: float, nu: float, exx: float) -> tuple:
     Exx = exx + 0.5 * exx * exx
     eyy = math.sqrt(1.0 - 2.0 * nu * Exx) - 1.0
     return -eyy / exx + 0.0, (1.0 + exx) * Y_or_ks * Exx / exx   # + 0.0: no "-0" in the tables
-
-
-def middle_strains(X, u, x0, x1):
-    """(eps_xx, eps_yy) fitted from the displacements of the middle fifth of the strip, where it
-    is in uniaxial stress."""
-    mid = np.abs(X[:, 0] - 0.5 * (x0 + x1)) <= 0.1 * (x1 - x0)
-    A = np.stack([np.ones(mid.sum()), X[mid, 0], X[mid, 1]], axis=1)
-    exx = np.linalg.lstsq(A, u[mid, 0], rcond=None)[0][1]
-    eyy = np.linalg.lstsq(A, u[mid, 1], rcond=None)[0][2]
-    return exx, eyy
 
 
 def pull(ctx, name: str, label: str, m3: M.Mesh, kind: str, build, unsolved: list, draw: bool = False):

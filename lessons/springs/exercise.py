@@ -12,7 +12,7 @@ import taichi as ti
 
 from engine.energies import springs as S
 from engine.integrators import kernels as K
-from .._exercise import TI_FUNC, Sampler, StudentError, Task, agreement, central_difference, deviation, \
+from .._exercise import call_student, TI_FUNC, Sampler, Task, agreement, central_difference, deviation, \
     factor_text, first_bad, ratio, substitute
 
 from engine.fields import mat3_array as mat3s, scalar_array as floats, vec3_array as vec3s
@@ -69,16 +69,6 @@ def _springs(n: int = 48, seed: int = 11):
     return u * (stretch * L)[:, None], L, c
 
 
-def _called(name: str, fn, *args):
-    try:
-        return fn(*args)
-    except StudentError:
-        raise
-    except Exception as exc:  # a Taichi compile or run error of the student's function
-        text = " ".join(str(exc).split())
-        raise StudentError(f"{name}: could not be compiled or run in a kernel: {text[:200]}") from None
-
-
 def _where(d, L, i: int) -> str:
     return f"spring {i} (l = {np.linalg.norm(d[i]):.3g} m, L = {L[i]:.3g} m)"
 
@@ -87,7 +77,7 @@ def _where(d, L, i: int) -> str:
 
 def check_energy(func) -> list:
     d, L, c = _springs()
-    got = _called("spring_energy", _spring_call(func, "s"), d, L, c)
+    got = call_student("spring_energy", _spring_call(func, "s"), d, L, c)
     ref = _spring_call(S.spring_energy, "s")(d, L, c)
     dev = deviation(got, ref)
     tol = 1e-10
@@ -111,7 +101,7 @@ def check_energy(func) -> list:
 
 def check_force(func) -> list:
     d, L, c = _springs()
-    got = _called("spring_force", _spring_call(func, "v"), d, L, c)
+    got = call_student("spring_force", _spring_call(func, "v"), d, L, c)
     energy = _spring_call(S.spring_energy, "s")
     ref = -central_difference(lambda dd: energy(dd, np.repeat(L, 3), np.repeat(c, 3)), d, 1e-6)
     dev = deviation(got, ref)
@@ -137,7 +127,7 @@ def check_force(func) -> list:
 
 def check_hessian(func) -> list:
     d, L, c = _springs()
-    got = _called("spring_hessian", _spring_call(func, "m"), d, L, c)
+    got = call_student("spring_hessian", _spring_call(func, "m"), d, L, c)
     force = _spring_call(_engine_force, "v")
     ref = -central_difference(lambda dd: force(dd, np.repeat(L, 3), np.repeat(c, 3)), d, 1e-6)
     dev = deviation(got, ref)
@@ -204,7 +194,7 @@ def _one_step(name: str, got, ref, what: str, id: str, diagnose) -> list:
 
 def check_symplectic(func) -> list:
     x, v, a, dt = _states()
-    xo, vo = _called("symplectic_euler", _update_call(func, 4), x, v, a, dt)
+    xo, vo = call_student("symplectic_euler", _update_call(func, 4), x, v, a, dt)
     v1 = v + dt[:, None] * a
     x1 = x + dt[:, None] * v1
 
@@ -223,7 +213,7 @@ def check_symplectic(func) -> list:
 
 def check_kick_drift(func) -> list:
     x, v, a, dt = _states(seed=6)
-    xo, vo = _called("verlet_kick_drift", _update_call(func, 4), x, v, a, dt)
+    xo, vo = call_student("verlet_kick_drift", _update_call(func, 4), x, v, a, dt)
     vh = v + 0.5 * dt[:, None] * a
     xh = x + dt[:, None] * vh
 
@@ -241,7 +231,7 @@ def check_kick_drift(func) -> list:
 
 def check_kick(func) -> list:
     _, v, a, dt = _states(seed=8)
-    vo = _called("verlet_kick", _update_call(func, 3), v, a, dt)
+    vo = call_student("verlet_kick", _update_call(func, 3), v, a, dt)
     ref = v + 0.5 * dt[:, None] * a
 
     def diagnose():
