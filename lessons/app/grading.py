@@ -88,23 +88,31 @@ class _Child:
         Returns False when it was stopped at the limit."""
         deadline = time.monotonic() + self.limit
         seen = 0
-        while self.proc.poll() is None:
-            time.sleep(0.05)
-            self._read()
-            if len(self.lines) > seen:
-                if any("start" in line for line in self.lines[seen:]):
-                    deadline = time.monotonic() + self.limit
-                seen = len(self.lines)
-            if time.monotonic() > deadline:
-                try:
-                    os.killpg(self.proc.pid, 9)
-                except ProcessLookupError:
-                    pass
-                self.proc.wait()
+        try:
+            while self.proc.poll() is None:
+                time.sleep(0.05)
                 self._read()
-                return False
+                if len(self.lines) > seen:
+                    if any("start" in line for line in self.lines[seen:]):
+                        deadline = time.monotonic() + self.limit
+                    seen = len(self.lines)
+                if time.monotonic() > deadline:
+                    self.stop()
+                    self._read()
+                    return False
+        except BaseException:   # an interrupt (Ctrl-C, a signal) of the grader stops the check with it
+            self.stop()
+            raise
         self._read()
         return True
+
+    def stop(self) -> None:
+        """Kill the child and everything it started (its own process group), and reap it."""
+        try:
+            os.killpg(self.proc.pid, 9)
+        except ProcessLookupError:
+            pass
+        self.proc.wait()
 
     def crash_text(self, returns: str = "") -> str:
         """Why the child ended without its result: a signal (a crash of Taichi's compiler, most

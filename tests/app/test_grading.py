@@ -168,3 +168,23 @@ def test_an_endless_loop_is_stopped_at_the_time_limit_and_the_other_functions_ar
     rows = {row["id"]: row for row in json.loads((tmp_path / "out.json").read_text())["experiments"]}
     assert rows["ex-verlet-kick-drift-runs"]["reason"] == "verlet_kick_drift: stopped after 20 s (an endless loop?)"
     assert rows["ex-verlet-kick"]["passed"] and rows["ex-spring-energy"]["passed"]
+
+
+def test_an_interrupted_check_stops_its_child_and_exits_130(tmp_path):
+    import signal
+    import time
+    folder = reference(tmp_path / "s", "springs")
+    path = folder / "springs.py"
+    path.write_text(path.read_text().replace("    v_half = v + 0.5 * dt * a\n",
+                                             "    v_half = v + 0.5 * dt * a\n    k = 1.0\n    while k > 0.0:\n"
+                                             "        k = k + 1.0\n", 1))
+    env = dict(os.environ, PYTHONPATH=str(ROOT), ELASTIC_CACHE_DIR=str(ROOT / ".ti_cache"))
+    proc = subprocess.Popen([sys.executable, "-m", "lessons", "check", "springs", "--solution", "s",
+                             "--functions-only"], cwd=tmp_path, env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    time.sleep(12)   # the checks have reached the endless loop
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    left = subprocess.run(["pgrep", "-f", f"grading_child springs {folder}"], capture_output=True, text=True)
+    assert left.stdout.strip() == "", "a child of the check is still running"
