@@ -3,7 +3,7 @@ the meshes and models, the standing-wave run, the drawings and the estimates of 
 are in :mod:`.scene`.
 
 Every standing-wave run is a scene run: velocity Verlet unless ``--integrator`` chooses another
-integrator. Under backward Euler the step is chosen from the phase (see :func:`.scene.standing_wave`)
+integrator. Under backward Euler the step is chosen from the phase (see :func:`lessons._waves.standing_wave`)
 and each wave stage adds the experiments of :func:`be_experiments` on the scheme's own damping.
 """
 from __future__ import annotations
@@ -20,12 +20,12 @@ from engine.theory.schemes import backward_euler_damping_rate as be_damping_rate
 
 from .._framework import Experiment
 from .._measure import middle_strains
-from .scene import (RUN_PERIODS, STRIPS, announce, area_model, bulk_tensor, draw_strip, eq_sheet, sheet_drawer,
-                    solid_drawer, square_domain_cells, standing_wave, unit, wave_time)
+from .._waves import RUN_PERIODS, sheet_drawer, solid_drawer, square_domain_cells, standing_wave, unit, wave_time
+from .scene import STRIPS, announce, area_model, bulk_tensor, draw_strip, eq_sheet
 
 BOX_LENGTH = 1.0    # m, the tet box of stage 1 and the cell size unit of stage 4
 SMALL_JITTER = 0.1  # a mild jitter whose affine prediction is still close
-BE_PHASE_LAG = 1e-3   # the bound on the phase lag at scene.BE_PHASE_STEP (8.3e-4), a tenth of the tightest
+BE_PHASE_LAG = 1e-3   # the bound on the phase lag at _waves.BE_PHASE_STEP (8.3e-4), a tenth of the tightest
                       # tolerance (1e-2) of the speeds
 BE_DAMPING_TOL = 0.03  # fitted / predicted decay rate: the decay over a run is only ~5%, and the probe
                        # also sees a little of other motion (up to 1.7% measured on the regular meshes)

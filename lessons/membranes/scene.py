@@ -3,8 +3,8 @@ Venant-Kirchhoff triangle and Baraff and Witkin's conditions, engine.energies.me
 stretched strip that measures Young's modulus and Poisson's ratio, the hanging cloth, how they are
 drawn, and the estimates of each stage's time.
 
-The standing-wave run is area-springs' (lessons.area_springs.scene.standing_wave): the same probe,
-the same integrator choices, so that the speeds of the two lessons compare run for run.
+The standing-wave run is lessons._waves', as in area-springs: the same probe, the same integrator
+choices, so that the speeds of the two lessons compare run for run.
 """
 import math
 
@@ -209,7 +209,7 @@ def damped_wave(ctx, name: str, model: Model, m3: M.Mesh, k: float, ctr, region,
     from engine.waves import ModeProbe
 
     from .._scene import simulate
-    from ..area_springs.scene import DRAWN_AMPLITUDE, sheet_drawer
+    from .._waves import DRAWN_AMPLITUDE, sheet_drawer
 
     cfg = ctx.cfg
     probe = ModeProbe(model.X, model.mass, np.array([1.0, 0.0]), np.array([1.0, 0.0]), k, ctr, region)

@@ -14,7 +14,7 @@ from lessons.app.blueprint import RunView
 
 from .._framework import Experiment
 from .._scene import simulate
-from ..area_springs.scene import RUN_PERIODS, sheet_drawer, square_domain_cells, standing_wave, unit
+from .._waves import RUN_PERIODS, sheet_drawer, square_domain_cells, standing_wave, unit
 from .scene import (STRIPS, announce, cloth_logger, draw_patch, hanging_cloth, membrane_model, plane_speeds, pull,
                     springs_for, strip, uniaxial_theory)
 

@@ -141,7 +141,7 @@ def test_stage2_records_each_wave_in_its_own_view_coloured_by_its_displacement(t
 
 
 def test_displacement_component_names_the_axis_or_the_wave_direction():
-    from lessons.area_springs.scene import displacement_component
+    from lessons._waves import displacement_component
     a, name = displacement_component([1.0, 0.0], [0.0, -1.0])  # S along x
     assert name == "u_y (m)" and np.allclose(a, [0, 1, 0])
     a, name = displacement_component([1, 1, 1] / np.sqrt(3), [-1, -1, -1] / np.sqrt(3))  # P along (1,1,1)
