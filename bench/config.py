@@ -19,6 +19,7 @@ implicit solvers see stretched springs and bent hinges, not the trivial rest sta
 import os
 
 import numpy as np
+from typing import NamedTuple
 
 CLOTH_E, CLOTH_RHO, CLOTH_B = 1e3, 0.1, 1e-4
 IMPLICIT_DT = 1.0 / 60.0
@@ -117,6 +118,28 @@ def cloth_scene(n: int, bending: bool = True, E: float = CLOTH_E):
     key = (n, bending, E)
     if key not in _cloths:
         _cloths[key] = cloth(n, E=E, rho=CLOTH_RHO, B=CLOTH_B if bending else 0.0)
+    return _cloths[key]
+
+
+MEMBRANE_MODEL = "membrane (Baraff-Witkin)"   # the model name of the membrane rows (bench/test_bench_explicit.py)
+
+
+class MembraneCloth(NamedTuple):
+    model: object
+    membrane: object
+
+
+def membrane_scene(n: int, E: float = CLOTH_E) -> MembraneCloth:
+    """The lessons' cloth (the mesh, masses, pins and gravity of :func:`cloth_scene`) with a
+    Baraff-Witkin membrane instead of springs: k_stretch = E, k_shear = E/2 (N/m); cached."""
+    key = ("membrane", n, E)
+    if key not in _cloths:
+        from engine.energies.membrane import MembraneEnergy
+        from engine.model import Model
+        c = cloth_scene(n, False, E)
+        model = Model(c.model.X, mass=c.model.mass, pinned=np.flatnonzero(c.model.pinned), gravity=c.model.gravity)
+        membrane = model.add_energy(MembraneEnergy.from_mesh(c.mesh, "baraff-witkin", k_stretch=E, k_shear=0.5 * E))
+        _cloths[key] = MembraneCloth(model, membrane)
     return _cloths[key]
 
 

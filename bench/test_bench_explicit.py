@@ -128,3 +128,42 @@ def test_force_kernels(benchmark, side, kernel):
     measure(benchmark, run, group="cloth-force-kernels", impl="engine" if kernel in (
         "zero", "spring_gather", "hinge_pass1", "hinge_gather", "bending_gather", "update") else kernel.split("_")[1],
             kernel=kernel, bytes=traffic.kernel_bytes(kernel, info["n"], info["m"], info["h"], _fb()), **info)
+
+
+MEMBRANE = config.MEMBRANE_MODEL
+
+
+@pytest.mark.parametrize("block", [1, config.EXPLICIT_BLOCK], ids=["1-step", f"{config.EXPLICIT_BLOCK}-steps"])
+@pytest.mark.parametrize("side", SIZES)
+def test_membrane_row(benchmark, side, block):
+    """The same cloth with a Baraff-Witkin membrane (engine/energies/membrane.py) instead of springs:
+    ``block`` symplectic-Euler steps per call, the engine (its generic path: per-triangle forces,
+    per-vertex gather, the update) against the same energy written in Warp
+    (bench/peers/warp_membrane.py), interleaved in rounds. Numba and numpy have no membrane."""
+    c = config.membrane_scene(side)
+    x0, v0 = config.cloth_start_state(c)
+    dtype = np.dtype(float_dtype())
+    st = c.model.make_state(x0, v0)
+    stepper = Stepper(c.model, "symplectic-euler")
+
+    def engine():
+        stepper.step(st, DT, block)
+        sync()
+    contenders = [Contender("engine", engine)]
+    left = {"numba": "the Numba peer writes springs and hinges only", "numpy": "the numpy baseline writes springs "
+            "and hinges only"}
+    why = peers.missing("warp")
+    if why:
+        left["warp"] = why
+    else:
+        from bench.peers.warp_membrane import WarpMembrane
+        p = WarpMembrane(c.model, c.membrane, dtype)
+        p.load(x0.astype(dtype), v0.astype(dtype))
+        contenders.append(Contender("warp", lambda: p.advance(DT, block),
+                                    info=dict(peer_threads=1, peer_layer="warp cpu (serial)")))
+    n, m = c.model.n, c.membrane.n_elements
+    row = measure_row(benchmark, contenders, group="cloth-explicit-step" if block == 1 else "cloth-explicit-block",
+                      budget="explicit", steps=block, left_out=left, model=MEMBRANE, kernel="explicit_step",
+                      side=int(round(np.sqrt(n))), n=n, m=m, h=0)
+    assert set(row) == {k.impl for k in contenders}
+    assert np.all(np.isfinite(st.numpy().x))

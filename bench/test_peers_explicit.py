@@ -170,3 +170,28 @@ def test_peer_rejects_bad_input_in_one_line(peer, monkeypatch):
         monkeypatch.setenv("ELASTIC_THREADS", "zero")
         with pytest.raises(ValueError, match=r"ELASTIC_THREADS must be an integer in 1\.\.\d+ \(got 'zero'\)"):
             _peer(peer, c, True, np.float64)
+
+
+# -- the membrane (bench/peers/warp_membrane.py) -----------------------------------------------------
+
+@pytest.mark.skipif(MISSING["warp"] is not None, reason=MISSING["warp"] or "")
+def test_warp_membrane_forces_and_steps_equal_the_engines(engine_f64):
+    """The Baraff-Witkin membrane written in Warp: -grad W equals the engine's MembraneEnergy forces
+    at a strained state, and its symplectic-Euler steps the engine's (float64, relative 1e-12)."""
+    from bench.peers.warp_membrane import WarpMembrane
+    c = config.membrane_scene(16)
+    peer = WarpMembrane(c.model, c.membrane, np.float64)
+    x = _random_state(c)
+    ref = c.membrane.forces(x)
+    assert np.max(np.abs(peer.elastic_forces(x) - ref)) <= 1e-12 * np.max(np.abs(ref))
+    x0, v0 = config.cloth_start_state(c)
+    for n_steps in (1, 3):
+        st = c.model.make_state(x0, v0)
+        Stepper(c.model, integrator("symplectic-euler")).step(st, 1e-4, n_steps)
+        want = st.numpy()
+        xs, vs = x0.copy(), v0.copy()
+        peer.step(xs, vs, 1e-4, n_steps)
+        moved = np.max(np.abs(want.x - x0))
+        assert moved > 0
+        assert np.max(np.abs(xs - want.x)) <= 1e-12 * moved
+        assert np.max(np.abs(vs - want.v)) <= 1e-12 * np.max(np.abs(want.v))

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from bench import traffic
+from bench.config import MEMBRANE_MODEL
 from bench.interleave import spread
 from engine.constants import SERIAL_BELOW
 
@@ -186,6 +187,7 @@ def build(raw_dir) -> dict:
 # --------------------------------------------------------------------------------------------
 
 EXPLICIT_PEERS = ("numba", "warp")
+EXPLICIT_MODELS = ("springs+bending", "springs", MEMBRANE_MODEL)   # the models of the explicit rows
 IMPLICIT_TARGET_RATIO = 0.8      # engine whole step <= 0.8 x the fastest contender (128^2, 256^2, tol 1e-5)
 SEQUENCE_TARGET_RATIO = 0.5      # over 60 consecutive steps
 EXPLICIT_TARGET_RATIO = 0.8      # engine <= 0.8 x the faster of Warp and Numba
@@ -219,7 +221,7 @@ def peer_ratios(rows: list) -> list:
     out = []
     for cfg in CONFIGS:
         for group in ("cloth-explicit-step", "cloth-explicit-block"):
-            for model in ("springs+bending", "springs"):
+            for model in EXPLICIT_MODELS:
                 for side in sorted({r["side"] for r in rows if r.get("config") == cfg
                                     and r.get("group") == group and r.get("model") == model}):
                     rs = [r for r in rows if r.get("config") == cfg and r.get("group") == group
