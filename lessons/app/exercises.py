@@ -70,7 +70,10 @@ def write_template(argv: list[str], out) -> int:
     """``exercise LESSON|all [DIR]``: write the templates; refuse to overwrite a file."""
     available = lessons_with_exercises()
     ids = [l.id for l in available]
-    if not argv or argv[0] in ("-h", "--help"):
+    if not argv:
+        raise UsageError(f"LESSON is required: one of {', '.join(ids)}, or all (see 'python -m lessons exercise "
+                         f"--help')")
+    if argv[0] in ("-h", "--help"):
         out.write(f"usage: python -m lessons exercise LESSON [DIR]\n\nWrite the student's template of LESSON's "
                   f"exercise (or of every lesson: all) to DIR/<lesson>.py (DIR: ./exercises).\n"
                   f"Then: python -m lessons check LESSON --solution DIR.\nLessons: {', '.join(ids)}\n")

@@ -56,6 +56,8 @@ def test_exercise_writes_one_module_per_lesson_with_every_function_and_refuses_t
 
 @pytest.mark.parametrize("args,needle", [
     (["exercise", "nosuch"], "LESSON must be one of rod-waves, springs,"),
+    (["exercise"], "LESSON is required: one of rod-waves, springs,"),
+    (["exercise", "springs", "a", "b"], "'exercise' takes LESSON and an optional DIR"),
     (["check", "nosuch", "--solution", "."], "LESSON must be one of rod-waves, springs,"),
     (["check", "springs", "--solution", "missing"], "--solution 'missing' is not a folder"),
     (["check", "springs", "--solution", "."], "springs.py does not exist: write it first with 'python -m lessons "
