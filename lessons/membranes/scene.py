@@ -133,21 +133,37 @@ def draw_patch(rec, name: str, label: str, m3: M.Mesh, x, energy) -> None:
     """One frame: the deformed patch, each vertex coloured by the energy per rest area of the
     triangles around it (J/m^2)."""
     T = m3.triangles
-    density = energy.triangle_energies(x) / energy.area_np
-    per_vertex = (np.bincount(T.ravel(), weights=np.repeat(density, 3), minlength=len(x))
-                  / np.maximum(np.bincount(T.ravel(), minlength=len(x)), 1))
+    per_vertex = vertex_mean(T, len(x), energy.triangle_energies(x) / energy.area_np)
     rec.run(name, RunView(label=label, camera="top", energy=None))
     rec.set_time(0, 0.0)
     rec.mesh(x, T, vertex_colors=rec.colors(per_vertex, "magnitude", "W/A (J/m^2)", float(per_vertex.max())))
 
 
-def cloth_logger(m3: M.Mesh, scale: float):
-    """log(rec, state): the cloth's triangles coloured by how far each vertex has fallen (m)."""
-    X, T = m3.vertices, m3.triangles
+def triangle_stretch(energy, x: np.ndarray) -> np.ndarray:
+    """(m,) each triangle's larger stretch along the warp and the weft, max(|w_u|, |w_v|) - 1 (the
+    lengths of F's columns, (F1) of engine.energies.membrane), from numpy positions x."""
+    T, Di = energy.triangles_np, energy.Dinv_np
+    d1, d2 = x[T[:, 1]] - x[T[:, 0]], x[T[:, 2]] - x[T[:, 0]]
+    wu = d1 * Di[:, 0, 0, None] + d2 * Di[:, 1, 0, None]
+    wv = d1 * Di[:, 0, 1, None] + d2 * Di[:, 1, 1, None]
+    return np.maximum(np.linalg.norm(wu, axis=1), np.linalg.norm(wv, axis=1)) - 1.0
+
+
+def vertex_mean(T: np.ndarray, n: int, values: np.ndarray) -> np.ndarray:
+    """(n,) the mean of ``values`` (one per triangle) over the triangles around each vertex."""
+    return (np.bincount(T.ravel(), weights=np.repeat(values, 3), minlength=n)
+            / np.maximum(np.bincount(T.ravel(), minlength=n), 1))
+
+
+def cloth_logger(m3: M.Mesh, energy, scale: float):
+    """log(rec, state): the cloth's triangles coloured by their stretch (the larger of warp and weft,
+    averaged at each vertex) on the fixed ``scale``, the hanging cloth's largest at rest."""
+    T, n = m3.triangles, m3.n_vertices
 
     def log(rec, st):
         x = st.x.to_numpy().astype(np.float64)
-        rec.mesh(x, T, vertex_colors=rec.colors(X[:, 2] - x[:, 2], "magnitude", "drop (m)", scale))
+        stretch = vertex_mean(T, n, triangle_stretch(energy, x))
+        rec.mesh(x, T, vertex_colors=rec.colors(stretch, "magnitude", "stretch", scale))
     return log
 
 
