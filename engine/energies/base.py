@@ -24,8 +24,9 @@ offers to the PCG solver (:mod:`engine.solvers`):
                    vertex, k*element + slot in increasing element order.
 """
 import numpy as np
+import taichi as ti
 
-from engine.fields import float_dtype, vec3_ndarray, zero_vec3
+from engine.fields import float_dtype, int_array, mat3_array, mat3_array2, vec3_ndarray, zero_vec3
 
 
 def stencil_triplets(k: int) -> int:
@@ -109,3 +110,32 @@ class Energy:
             self.add_hessian_product(x, dx, out, psd)
             H[:, col] = out.to_numpy().reshape(-1)
         return H
+
+
+# --------------------------------------------------------------------------------------------
+# The per-vertex pass of an element energy: gathering the per-element, per-slot results
+# --------------------------------------------------------------------------------------------
+
+@ti.func
+def slot_gather(vh: ti.template(), offsets: ti.template(), entries: ti.template(), v, k: ti.template()):
+    """For vertex v, the sum over its incidences (entry = k*element + slot, in the order of
+    ``entries``) of vh[element, slot]: a stencil energy's per-element vectors (forces, Hessian
+    products) gathered without atomics."""
+    acc = ti.math.vec3(0.0)
+    for j in range(offsets[v], offsets[v + 1]):
+        ent = entries[j]
+        acc += vh[ent // k, ent % k]
+    return acc
+
+
+@ti.kernel
+def gather_slot_blocks_kernel(dh: mat3_array2, offsets: int_array, entries: int_array, diag: mat3_array,
+                              k: ti.template()):
+    """diag[v] += the sum over vertex v's incidences (entry = k*element + slot) of dh[element, slot]:
+    the block-Jacobi diagonal from per-element diagonal blocks."""
+    for v in range(offsets.shape[0] - 1):
+        acc = ti.math.mat3(0.0)
+        for j in range(offsets[v], offsets[v + 1]):
+            ent = entries[j]
+            acc += dh[ent // k, ent % k]
+        diag[v] += acc

@@ -86,14 +86,14 @@ uniformly bent regular mesh it equals total energy / total area at interior vert
 import numpy as np
 import taichi as ti
 
-from engine.energies.base import Energy
+from engine.energies.base import Energy, gather_slot_blocks_kernel, slot_gather
 from engine.energies.hinge import (MODE_HALF_ANGLE, MODE_QUADRATIC, dihedral_angle, dihedral_angle_gradient,
                                    dihedral_angle_hessian_block, dihedral_angle_hessian_parts, hinge_energy,
                                    hinge_energy_terms, hinge_forces, hinge_hessian_block, hinge_hessian_parts, row_frame)
 # the angle's kernels, also named here (__all__) for this module's readers
 from engine.energies.hinge import bridson_u_kernel, hinge_angles_kernel, theta_gradient_kernel, theta_hessian_kernel
 from engine.errors import ModelError
-from engine.fields import (float_dtype, int_array, mat3_array, mat3_array2, scalar_array, vec3_array, vec3_array2,
+from engine.fields import (float_dtype, int_array, mat3_array2, scalar_array, vec3_array, vec3_array2,
                            vec3_ndarray)
 from engine.fields import int_array2 as hinge_array
 from engine.mesh import as_points3, dihedral_angles, hinge_geometry, incidence
@@ -104,7 +104,7 @@ __all__ = [
     "hinge_energies_kernel", "bending_energy_kernel", "hinge_forces_kernel",
     "hinge_hessian_kernel", "hinge_hessian_products_kernel",
     "hinge_gauss_newton_factors_kernel", "hinge_force_vectors", "hinge_gather", "hinge_block",
-    "gather_hinge_vectors_kernel", "gather_hinge_diagonal_kernel",
+    "gather_hinge_vectors_kernel",
     "hinge_stiffness",
     "dense_hessian_from_hinge_blocks", "scatter_hinge_vectors_numpy", "validate_hinges",
 ]
@@ -175,11 +175,7 @@ def hinge_force_vectors(x: ti.template(), hinges: ti.template(), k: ti.template(
 @ti.func
 def hinge_gather(vh: ti.template(), offsets: ti.template(), entries: ti.template(), v):
     """Pass 2 for vertex v: the sum over its incidences (entry = 4*hinge + slot) of vh[hinge, slot]."""
-    acc = ti.math.vec3(0.0)
-    for j in range(offsets[v], offsets[v + 1]):
-        ent = entries[j]
-        acc += vh[ent // 4, ent % 4]
-    return acc
+    return slot_gather(vh, offsets, entries, v, 4)
 
 
 @ti.kernel
@@ -241,17 +237,6 @@ def hinge_hessian_products_kernel(x: vec3_array, hinges: hinge_array, k: scalar_
                 for j in ti.static(range(4)):
                     y += W1 * (dihedral_angle_hessian_block(i, j, *parts) @ d[j])
                 yh[h, i] = y
-
-
-@ti.kernel
-def gather_hinge_diagonal_kernel(dh: mat3_array2, offsets: int_array, entries: int_array, diag: mat3_array):
-    # pass 2: diag[v] += sum over incidences of dh[hinge, slot]
-    for v in range(offsets.shape[0] - 1):
-        acc = ti.math.mat3(0.0)
-        for j in range(offsets[v], offsets[v + 1]):
-            ent = entries[j]
-            acc += dh[ent // 4, ent % 4]
-        diag[v] += acc
 
 
 # --------------------------------------------------------------------------------------------
@@ -563,7 +548,7 @@ class BendingEnergy(Energy):
         if self._diag is None:
             self._diag = ti.ndarray(dtype=ti.math.mat3, shape=(self.n_hinges, 4))
         hinge_hessian_kernel(self._vec3(x, "x"), *self.hinge_args(), bool(psd), True, self._diag)
-        gather_hinge_diagonal_kernel(self._diag, self.offsets, self.entries, diag)
+        gather_slot_blocks_kernel(self._diag, self.offsets, self.entries, diag, 4)
 
     def dense_hessian(self, x, psd: bool = True) -> np.ndarray:
         """Dense (3n, 3n) Hessian assembled in numpy from the blocks (tests, small meshes)."""

@@ -56,7 +56,7 @@ corner incidence (entry = 3 triangle + corner), deterministic, as the hinge ener
 import numpy as np
 import taichi as ti
 
-from engine.energies.base import Energy
+from engine.energies.base import Energy, gather_slot_blocks_kernel, slot_gather
 from engine.errors import ModelError
 from engine.fields import (float_dtype, int_array, mat3_array2, scalar_array, vec3_array, vec3_array2, vec3_ndarray)
 from engine.fields import int_array2 as triangle_array
@@ -267,22 +267,7 @@ def block_products_kernel(blocks: mat3_array2, tris: triangle_array, dx: vec3_ar
 @ti.kernel
 def gather_corners_kernel(vt: vec3_array2, offsets: int_array, entries: int_array, out: vec3_array):
     for v in range(offsets.shape[0] - 1):
-        acc = ti.math.vec3(0.0)
-        for j in range(offsets[v], offsets[v + 1]):
-            ent = entries[j]
-            acc += vt[ent // 3, ent % 3]
-        out[v] += acc
-
-
-@ti.kernel
-def gather_corner_blocks_kernel(dt: mat3_array2, offsets: int_array, entries: int_array,
-                                diag: ti.types.ndarray(dtype=ti.math.mat3, ndim=1)):
-    for v in range(offsets.shape[0] - 1):
-        acc = ti.math.mat3(0.0)
-        for j in range(offsets[v], offsets[v + 1]):
-            ent = entries[j]
-            acc += dt[ent // 3, ent % 3]
-        diag[v] += acc
+        out[v] += slot_gather(vt, offsets, entries, v, 3)
 
 
 @ti.func
@@ -507,7 +492,7 @@ class MembraneEnergy(Energy):
         if self._diag is None:
             self._diag = ti.ndarray(dtype=ti.math.mat3, shape=(self.n_elements, 3))
         membrane_hessian_kernel(self._vec3(x, "x"), *self.args(), bool(psd), True, self._diag)
-        gather_corner_blocks_kernel(self._diag, self.offsets, self.entries, diag)
+        gather_slot_blocks_kernel(self._diag, self.offsets, self.entries, diag, 3)
 
     def hessian_blocks_numpy(self, x, psd: bool = True) -> np.ndarray:
         return self.hessian_blocks(x, psd).to_numpy().astype(np.float64)
