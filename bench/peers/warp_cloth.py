@@ -144,7 +144,48 @@ def _build(dtype):
     return _kernels[key]
 
 
-class WarpCloth:
+class WarpStepper:
+    """What both Warp peers share (this module's cloth, bench.peers.warp_membrane's membrane): the
+    state ``x``, ``v`` in Warp arrays of ``n`` entries and ``dtype``, copied in and out, and a step's
+    launches, recorded once per dt by the subclass's ``_record(dt)`` (into ``_cmds``) and replayed."""
+
+    def load(self, x, v=None) -> None:
+        """Copy numpy (n, 3) positions (and velocities) into the Warp state."""
+        for name, src, dst in (("x", x, self.x), ("v", v, self.v)):
+            if src is None:
+                continue
+            if tuple(np.shape(src)) != (self.n, 3):
+                raise ValueError(f"{name} must have shape ({self.n}, 3) (got {np.shape(src)})")
+            dst.numpy()[...] = np.asarray(src, dtype=self.dtype)   # a CPU array's numpy() is a view
+
+    def numpy(self):
+        """(x, v) as new numpy (n, 3) arrays of ``dtype``."""
+        return self.x.numpy().copy(), self.v.numpy().copy()
+
+    def advance(self, dt: float, n_steps: int = 1) -> None:
+        """``n_steps`` symplectic-Euler steps of the Warp state (3 launches each; CPU launches return
+        when done)."""
+        if not (math.isfinite(dt) and dt > 0.0):
+            raise ValueError(f"dt must be finite and > 0 (got {dt!r})")
+        if self._cmds is None or dt != self._dt:
+            self._record(dt)
+        for _ in range(n_steps):
+            for cmd in self._cmds:
+                cmd.launch()
+
+    def step(self, x, v, dt: float, n_steps: int = 1):
+        """``n_steps`` symplectic-Euler steps of numpy (n, 3) arrays, in place; returns (x, v)."""
+        dt, n_steps = peers.check_step_args(self.n, x, v, dt, n_steps)
+        self.load(x, v)
+        self.advance(dt, n_steps)
+        x[...] = self.x.numpy()
+        v[...] = self.v.numpy()
+        return x, v
+
+    symplectic_euler = step  # the name NumpyCloth uses
+
+
+class WarpCloth(WarpStepper):
     """The cloth's explicit step in Warp on the CPU (see the module docstring; single-threaded).
 
     Arguments as :class:`bench.peers.numba_cloth.NumbaCloth` (``model``, ``springs``, ``bending`` or
@@ -196,41 +237,6 @@ class WarpCloth:
         cmds.append(wp.launch(k["drift"], dim=self.n, inputs=[self.x, self.v, self.inv_mass, s(dt)],
                               device=self.device, record_cmd=True))
         self._cmds, self._dt = cmds, dt
-
-    def load(self, x, v=None) -> None:
-        """Copy numpy (n, 3) positions (and velocities) into the Warp state."""
-        for name, src, dst in (("x", x, self.x), ("v", v, self.v)):
-            if src is None:
-                continue
-            if tuple(np.shape(src)) != (self.n, 3):
-                raise ValueError(f"{name} must have shape ({self.n}, 3) (got {np.shape(src)})")
-            dst.numpy()[...] = np.asarray(src, dtype=self.dtype)   # a CPU array's numpy() is a view
-
-    def numpy(self):
-        """(x, v) as new numpy (n, 3) arrays of ``dtype``."""
-        return self.x.numpy().copy(), self.v.numpy().copy()
-
-    def advance(self, dt: float, n_steps: int = 1) -> None:
-        """``n_steps`` symplectic-Euler steps of the Warp state (3 launches each; CPU launches return
-        when done)."""
-        if not (math.isfinite(dt) and dt > 0.0):
-            raise ValueError(f"dt must be finite and > 0 (got {dt!r})")
-        if self._cmds is None or dt != self._dt:
-            self._record(dt)
-        for _ in range(n_steps):
-            for cmd in self._cmds:
-                cmd.launch()
-
-    def step(self, x, v, dt: float, n_steps: int = 1):
-        """``n_steps`` symplectic-Euler steps of numpy (n, 3) arrays, in place; returns (x, v)."""
-        dt, n_steps = peers.check_step_args(self.n, x, v, dt, n_steps)
-        self.load(x, v)
-        self.advance(dt, n_steps)
-        x[...] = self.x.numpy()
-        v[...] = self.v.numpy()
-        return x, v
-
-    symplectic_euler = step  # the name NumpyCloth uses
 
     def forces(self, x) -> np.ndarray:
         """-grad W + M g on free vertices, 0 on pinned ones (as the engine's ``Model.forces``), as a new

@@ -10,12 +10,10 @@ style: per step three launches, (1) per triangle its three force vectors into an
 fixed order: no atomics, deterministic) and the kick v += dt (f/m + g), (3) per vertex the drift.
 The launches are recorded once and replayed. Warp's CPU backend runs each launch on one thread.
 """
-import math
-
 import numpy as np
 
 from bench import peers
-from bench.peers.warp_cloth import _warp
+from bench.peers.warp_cloth import WarpStepper, _warp
 
 _kernels: dict = {}
 
@@ -87,10 +85,10 @@ def _build(dtype):
     return _kernels[key]
 
 
-class WarpMembrane:
+class WarpMembrane(WarpStepper):
     """Symplectic Euler of a model whose one energy is a Baraff-Witkin MembraneEnergy, in Warp on the
-    CPU (module docstring; single-threaded). ``load``/``numpy``/``advance``/``step`` as
-    :class:`bench.peers.warp_cloth.WarpCloth`; :meth:`elastic_forces` is -grad W alone."""
+    CPU (module docstring; single-threaded). ``load``/``numpy``/``advance``/``step`` are
+    :class:`bench.peers.warp_cloth.WarpStepper`'s; :meth:`elastic_forces` is -grad W alone."""
 
     def __init__(self, model, membrane, dtype=np.float64):
         if membrane.model != "baraff-witkin" or membrane.has_damping:
@@ -131,34 +129,6 @@ class WarpMembrane:
             wp.launch(k["drift"], dim=self.n, inputs=[self.x, self.v, self.inv_mass, s(dt)], device=self.device,
                       record_cmd=True)]
         self._dt = dt
-
-    def load(self, x, v=None) -> None:
-        for name, src, dst in (("x", x, self.x), ("v", v, self.v)):
-            if src is None:
-                continue
-            if tuple(np.shape(src)) != (self.n, 3):
-                raise ValueError(f"{name} must have shape ({self.n}, 3) (got {np.shape(src)})")
-            dst.numpy()[...] = np.asarray(src, dtype=self.dtype)
-
-    def numpy(self):
-        return self.x.numpy().copy(), self.v.numpy().copy()
-
-    def advance(self, dt: float, n_steps: int = 1) -> None:
-        if not (math.isfinite(dt) and dt > 0.0):
-            raise ValueError(f"dt must be finite and > 0 (got {dt!r})")
-        if self._cmds is None or dt != self._dt:
-            self._record(dt)
-        for _ in range(n_steps):
-            for cmd in self._cmds:
-                cmd.launch()
-
-    def step(self, x, v, dt: float, n_steps: int = 1):
-        dt, n_steps = peers.check_step_args(self.n, x, v, dt, n_steps)
-        self.load(x, v)
-        self.advance(dt, n_steps)
-        x[...] = self.x.numpy()
-        v[...] = self.v.numpy()
-        return x, v
 
     def elastic_forces(self, x) -> np.ndarray:
         """-grad W at numpy positions x, as a new (n, 3) array (the state is not touched)."""
