@@ -163,3 +163,22 @@ def middle_strains(X: np.ndarray, u: np.ndarray, x0: float, x1: float) -> tuple:
     exx = np.linalg.lstsq(A, u[mid, 0], rcond=None)[0][1]
     eyy = np.linalg.lstsq(A, u[mid, 1], rcond=None)[0][2]
     return exx, eyy
+
+
+def stretch_strip(m3, build, strain: float, end_width: float, tol: float) -> dict:
+    """A static stretch test: clamp a strip's ends (the vertices within ``end_width`` of its smallest
+    and largest x), pull them apart by ``strain``, and solve the statics of ``build(m3, pinned)`` to
+    the residual ``tol``. Returns the solve (``res``), the displacements ``u``, the strains fitted in
+    the middle fifth (``exx``, ``eyy``), the pull on the right end ``F`` (N) and the strip's ``width``."""
+    from engine.statics import solve_static
+
+    X = m3.vertices
+    x0, x1 = X[:, 0].min(), X[:, 0].max()
+    left, right = X[:, 0] <= x0 + end_width, X[:, 0] >= x1 - end_width
+    model = build(m3, np.flatnonzero(left | right))
+    start = X.copy()
+    start[:, 0] = x0 + (X[:, 0] - x0) * (1 + strain)
+    res = solve_static(model, x0=start, tol=tol, max_iter=60, raise_on_failure=False)
+    u = res.x - X
+    exx, eyy = middle_strains(X, u, x0, x1)
+    return dict(res=res, u=u, exx=exx, eyy=eyy, F=res.reactions[right, 0].sum(), width=X[:, 1].max() - X[:, 1].min())

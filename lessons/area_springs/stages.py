@@ -19,7 +19,7 @@ from engine.waves import cauchy_born_tensor, christoffel, max_speed, relaxed_sti
 from engine.theory.schemes import backward_euler_damping_rate as be_damping_rate
 
 from .._framework import Experiment
-from .._measure import middle_strains
+from .._measure import stretch_strip
 from .._waves import RUN_PERIODS, sheet_drawer, solid_drawer, square_domain_cells, standing_wave, unit, wave_time
 from .scene import STRIPS, announce, area_model, bulk_tensor, draw_strip, eq_sheet
 
@@ -382,28 +382,18 @@ def _pull(ctx, name: str, m2: M.Mesh, end_width: float, unsolved: list):
     """Clamp the ends (vertices within end_width of x_min/x_max), stretch by cfg.strain,
     solve the statics; returns (nu, E_eff in the middle, F/(w * nominal strain)). A solve that stops
     short of its tolerance appends why to ``unsolved`` (the measurements are then of its last iterate)."""
-    from engine.statics import solve_static
-
     cfg = ctx.cfg
     m3 = M.embed_3d(m2)
-    X = m3.vertices
-    x0, x1 = X[:, 0].min(), X[:, 0].max()
-    left, right = X[:, 0] <= x0 + end_width, X[:, 0] >= x1 - end_width
-    model, c, mass = area_model(m3, cfg.E, cfg.rho, pinned=np.flatnonzero(left | right))
-    start = X.copy()
-    start[:, 0] = x0 + (X[:, 0] - x0) * (1 + cfg.strain)
-    res = solve_static(model, x0=start, tol=STRETCH_TOL, max_iter=60, raise_on_failure=False)
+    s = stretch_strip(m3, lambda mesh, pinned: area_model(mesh, cfg.E, cfg.rho, pinned=pinned)[0], cfg.strain,
+                      end_width, STRETCH_TOL)
+    res, exx, eyy, F, width = s["res"], s["exx"], s["eyy"], s["F"], s["width"]
     if not res.converged:
         unsolved.append(f"{STRIPS[name]}: the static solve stopped at residual {res.residual:.2g} > {STRETCH_TOL:g} "
                         f"after {res.iterations} Newton steps ({res.message})")
-    u = res.x - X
-    width = X[:, 1].max() - X[:, 1].min()
-    exx, eyy = middle_strains(X, u, x0, x1)
-    F = res.reactions[right, 0].sum()
     ctx.progress(f"{name}: {res.iterations} Newton steps, residual {res.residual:.2g}; eps_xx {exx:.6g} in the middle "
                  f"(nominal {cfg.strain:g}), eps_yy {eyy:.6g}, pin force {F:.6g} N")
     if ctx.rec.enabled:
-        draw_strip(ctx.rec, name, m3, res.x, u, cfg.strain)
+        draw_strip(ctx.rec, name, m3, res.x, s["u"], cfg.strain)
     return -eyy / exx, F / (width * exx), F / (width * cfg.strain)
 
 

@@ -17,7 +17,7 @@ from lessons.app.blueprint import RunView
 
 from .. import _budget
 from .._budget import StageCost, check_stages
-from .._measure import middle_strains
+from .._measure import stretch_strip
 from ..area_springs.scene import area_model
 
 STRETCH_TOL = 1e-9   # the static stretch's residual (net force / weight scale)
@@ -66,26 +66,15 @@ def uniaxial_theory(model: str, Y_or_ks: float, nu: float, exx: float) -> tuple:
 def pull(ctx, name: str, label: str, m3: M.Mesh, kind: str, build, unsolved: list, draw: bool = False):
     """Clamp the strip's ends, stretch it by cfg.strain, solve the statics; returns (nu, the
     measured modulus F/(w eps_xx), eps_xx). ``build(m3, pinned)`` makes the model."""
-    from engine.statics import solve_static
-
     cfg = ctx.cfg
-    X = m3.vertices
-    x0, x1 = X[:, 0].min(), X[:, 0].max()
-    left, right = X[:, 0] <= x0 + end_width(kind), X[:, 0] >= x1 - end_width(kind)
-    model = build(m3, np.flatnonzero(left | right))
-    start = X.copy()
-    start[:, 0] = x0 + (X[:, 0] - x0) * (1 + cfg.strain)
-    res = solve_static(model, x0=start, tol=STRETCH_TOL, max_iter=60, raise_on_failure=False)
+    s = stretch_strip(m3, build, cfg.strain, end_width(kind), STRETCH_TOL)
+    res, exx, eyy, F, width = s["res"], s["exx"], s["eyy"], s["F"], s["width"]
     if not res.converged:
         unsolved.append(f"{label}: the static solve stopped at residual {res.residual:.2g} > {STRETCH_TOL:g} after "
                         f"{res.iterations} Newton steps ({res.message})")
-    u = res.x - X
-    width = X[:, 1].max() - X[:, 1].min()
-    exx, eyy = middle_strains(X, u, x0, x1)
-    F = res.reactions[right, 0].sum()
     ctx.progress(f"{label}: {res.iterations} Newton steps, eps_xx {exx:.6g}, eps_yy {eyy:.6g}, pull {F:.6g} N")
     if draw and ctx.rec.enabled:
-        draw_strip(ctx.rec, name, label, m3, X + u, u, cfg.strain)
+        draw_strip(ctx.rec, name, label, m3, m3.vertices + s["u"], s["u"], cfg.strain)
     return -eyy / exx + 0.0, F / (width * exx), exx
 
 
