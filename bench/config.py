@@ -122,6 +122,7 @@ def cloth_scene(n: int, bending: bool = True, E: float = CLOTH_E):
 
 
 MEMBRANE_MODEL = "membrane (Baraff-Witkin)"   # the model name of the membrane rows (bench/test_bench_explicit.py)
+MEMBRANE_IMPLICIT_GROUP = "membrane-implicit-step"   # the membrane's backward-Euler rows (bench/test_bench_implicit.py)
 
 
 class MembraneCloth(NamedTuple):

@@ -10,7 +10,10 @@ Each test is one comparison row, its contenders timed interleaved in rounds (ben
   numpy + PARDISO (analysis once), ``pypardiso.spsolve``, CHOLMOD, and PARDISO's numeric
   factorisation + solve of the same matrix alone (``pardiso-factor``: no assembly, no check);
 * ``test_backward_euler_iterative``: engine PCG, scipy CG and pyamg + CG at one tolerance;
-* ``test_backward_euler_sequence``: 60 consecutive steps, engine PARDISO and numpy + PARDISO.
+* ``test_backward_euler_sequence``: 60 consecutive steps, engine PARDISO and numpy + PARDISO;
+* ``test_membrane_direct``, ``test_membrane_iterative``: the same step of the cloth's mesh with a
+  Baraff-Witkin membrane instead of springs and hinges (config.membrane_scene; the numpy assembly
+  of bench/baseline.NumpyMembrane), the direct solvers and, at tol 1e-5, the iterative ones.
 
 Every timed single step starts from the same state (config.cloth_start_state, reset outside the
 clock) after one untimed step of the same contender (compilation, the pattern, PARDISO's symbolic
@@ -23,7 +26,7 @@ import numpy as np
 import pytest
 
 from bench import config, traffic
-from bench.baseline import NumpyCloth
+from bench.baseline import NumpyCloth, NumpyMembrane
 from bench.interleave import Contender, measure_row
 from bench.peers import sparse as peers
 from bench.timing import sync
@@ -43,9 +46,22 @@ _SLOW = ("engine-cholesky", "peer-cholmod", "engine-pcg", "scipy", "peer-pyamg-c
 MAX_SIDE = {"smoke": {}, "quick": {k: 64 for k in _SLOW}, "full": {k: 128 for k in _SLOW}}
 
 
+def _membrane(c) -> bool:
+    return isinstance(c, config.MembraneCloth)
+
+
 def _info(c):
-    return dict(side=int(round(np.sqrt(c.model.n))), n=c.model.n, m=c.springs.m, h=c.bending.n_hinges,
-                dt=DT, E=config.CLOTH_E, model="springs+bending")
+    side = int(round(np.sqrt(c.model.n)))
+    if _membrane(c):
+        return dict(side=side, n=c.model.n, triangles=c.membrane.n_elements, dt=DT, E=config.CLOTH_E,
+                    model=config.MEMBRANE_MODEL)
+    return dict(side=side, n=c.model.n, m=c.springs.m, h=c.bending.n_hinges, dt=DT, E=config.CLOTH_E,
+                model="springs+bending")
+
+
+def _baseline(c):
+    """The numpy model of the scene: NumpyCloth (springs + hinges) or NumpyMembrane."""
+    return NumpyMembrane(c.model, c.membrane) if _membrane(c) else NumpyCloth(c.model, c.springs, c.bending)
 
 
 def _peers_here() -> str | None:
@@ -94,7 +110,7 @@ def _engine(c, solver, tol, steps=1):
         return d
 
     info = dict(solver=solver, tol=tol, tol_failed=failed)
-    if solver == "pcg":
+    if solver == "pcg" and not _membrane(c):   # the traffic model counts springs and hinges
         fb = np.dtype(float_dtype()).itemsize
         i = _info(c)
         info["bytes_per_iteration"] = traffic.kernel_bytes("cg_iteration", i["n"], i["m"], i["h"], fb)
@@ -106,7 +122,7 @@ def _peer(c, impl, tol, steps=1):
     reason = peers.available(name)
     if reason:
         return None, reason
-    base = NumpyCloth(c.model, c.springs, c.bending)
+    base = _baseline(c)
     x0, v0 = config.cloth_start_state(c)
     if name == "pardiso-factor":
         f = peers.FactorOnly(base, x0, v0, DT)
@@ -222,3 +238,30 @@ def test_backward_euler_sequence(benchmark, side):
     row = measure_row(benchmark, contenders, group="cloth-implicit-sequence", budget="sequence", steps=steps,
                       left_out=left, warmup=1, warm=False, tol=TOLS[0], **_info(c))
     _check(row)
+
+
+def _membrane_row(benchmark, side, wanted, kind, tol):
+    if config.config_name() != "t2-f64" and config.profile() != "smoke":
+        pytest.skip("the membrane rows are timed in the 2-thread f64 process only (they are there for the peers)")
+    c = config.membrane_scene(side)
+    contenders, left = _row(c, wanted, tol)
+    if not contenders:
+        pytest.skip("; ".join(f"{k}: {v}" for k, v in left.items()))
+    extra = dict(warmup=1, tol=tol) if kind == "iterative" else {}
+    row = measure_row(benchmark, contenders, group=config.MEMBRANE_IMPLICIT_GROUP, budget=kind, left_out=left, row=kind,
+                      **extra, **_info(c))
+    _check(row)
+
+
+@pytest.mark.parametrize("side", SIZES)
+def test_membrane_direct(benchmark, side):
+    """The direct solvers for one step of the Baraff-Witkin membrane (config.membrane_scene), the
+    peers assembling it in numpy (bench/baseline.NumpyMembrane), interleaved in rounds."""
+    _membrane_row(benchmark, side, ("engine-pardiso", "engine-cholesky", "peer-pardiso", "peer-pardiso-spsolve",
+                                    "peer-cholmod"), "direct", TOLS[0])
+
+
+@pytest.mark.parametrize("side", SIZES)
+def test_membrane_iterative(benchmark, side):
+    """The iterative solvers for the same membrane step at relative residual 1e-5, interleaved."""
+    _membrane_row(benchmark, side, ITERATIVE, "iterative", TOLS[0])

@@ -8,6 +8,7 @@ bench/test_bench_*.py):
 * the numpy + scipy backward-Euler step agrees with the engine's (PCG and Cholesky) on the same
   input, and its assembled matrix with the engine's PSD Hessian (the precomputed-pattern assembly
   with a fresh COO one); every sparse peer (bench/peers/sparse.py) solves the engine's system;
+  the same for the Baraff-Witkin membrane's numpy model (NumpyMembrane);
 * the rod baselines agree with engine.rod, and the rod-as-Model backward Euler with the rod's;
 * the headline's accuracy-matched dt and crossover helpers, the traffic model, and the streaming
   copy kernel do what they say.
@@ -18,7 +19,7 @@ import numpy as np
 import pytest
 
 from bench import config, headline, traffic
-from bench.baseline import NumpyCloth, NumpyRod
+from bench.baseline import NumpyCloth, NumpyMembrane, NumpyRod
 from bench.variants import VARIANTS, bending_variant, spring_variant, stream_copy
 from engine.constants import CFL_SAFETY, G
 from engine.integrators import BackwardEuler, Stepper
@@ -242,6 +243,46 @@ def test_scipy_step_reaches_the_benchmark_tolerance():
     base.backward_euler(x, v, config.IMPLICIT_DT, tol=config.IMPLICIT_TOL[64])
     assert base.last_residual <= config.IMPLICIT_TOL[64]
     assert base.last_assembly_s > 0 and base.last_solve_s > 0
+
+
+# -- implicit: the membrane's numpy model against the engine ----------------------------------------
+
+def test_numpy_membrane_forces_and_matrix_equal_the_engines():
+    """NumpyMembrane (the membrane rows' peers' model): its forces are the engine's (membrane +
+    gravity, pins zero) and its scattered PSD blocks the engine's dense PSD Hessian over the free
+    degrees of freedom, on two states (full and upper triangle)."""
+    c = config.membrane_scene(10)
+    base = NumpyMembrane(c.model, c.membrane)
+    free = np.repeat(c.model.free, 3)
+    for seed in (1, 2):
+        x = _deformed(c, seed=seed, amp=0.02)
+        ref = (c.membrane.forces(x) + c.model.mass[:, None] * c.model.gravity) * c.model.free[:, None]
+        assert np.max(np.abs(base.forces(x) - ref)) <= 1e-12 * np.abs(ref).max()
+        H = c.model.dense_hessian(vec3_ndarray(c.model.n, x), psd=True)[np.ix_(free, free)]
+        assert np.max(np.abs(base.hessian_psd(x).toarray() - H)) <= 1e-12 * np.abs(H).max()
+        U = base.system_matrix(x, 1.0, upper=True).toarray()
+        assert np.max(np.abs(U - np.triu(H + np.eye(len(H))))) <= 1e-12 * np.abs(H).max()
+
+
+@pytest.mark.parametrize("name", ["scipy-cg", "pardiso"])
+def test_membrane_peers_step_as_the_engine(name):
+    """A membrane row's peer steps the membrane as the engine's backward Euler does (Eigen LL^T at
+    tol 1e-12): the same x+ to 1e-7 of the displacement."""
+    from bench.peers import sparse as peers
+    if peers.available(name):
+        pytest.skip(peers.available(name))
+    c = config.membrane_scene(10)
+    x0, v0 = config.cloth_start_state(c)
+    dt = 1.0 / 60.0
+    peer = peers.SparsePeer(name, NumpyMembrane(c.model, c.membrane), tol=1e-11)
+    x, v = x0.copy(), v0.copy()
+    peer.step(x, v, dt)
+    st = c.model.make_state(x0, v0)
+    Stepper(c.model, BackwardEuler(solver="cholesky", tol=1e-12, newton_iterations=1, line_search=False)).step(st, dt)
+    moved = np.max(np.abs(st.numpy().x - x0))
+    assert moved > 1e-3
+    assert np.max(np.abs(x - st.numpy().x)) <= 1e-7 * moved
+    assert peer.last["residual"] <= 1e-11
 
 
 # -- rod ---------------------------------------------------------------------------------------

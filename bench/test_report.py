@@ -217,3 +217,32 @@ def test_a_rerun_is_checked_against_the_reference_spread(tmp_path):
     lines, outside = report.against_text(run, ref, "ref")
     assert outside == 1 and "1 of 2 ratios within the reference's spread" in lines[-1]
     assert any("OUTSIDE" in line and "explicit" in line for line in lines)
+
+
+def test_membrane_implicit_rows_are_their_own_comparison(tmp_path):
+    """The membrane's backward-Euler rows (group config.MEMBRANE_IMPLICIT_GROUP) give their own ratio
+    entry, named by the model, beside the cloth's at the same size and tolerance, and their own table."""
+    from bench.config import MEMBRANE_IMPLICIT_GROUP, MEMBRANE_MODEL
+    raw = tmp_path / "raw"
+    raw.mkdir()
+    cl = dict(side=64, n=4096, m=12033, h=11781, model="springs+bending")
+    mem = dict(side=64, n=4096, triangles=7938, model=MEMBRANE_MODEL)
+    d = dict(solver="pardiso", tol=1e-5)
+    b = [_interleaved("cloth-implicit-step", "row-direct", {"engine-pardiso": ([1.0] * 5, d),
+                                                            "peer-pardiso": ([2.0] * 5, d)}, **cl),
+         _interleaved(MEMBRANE_IMPLICIT_GROUP, "row-membrane", {"engine-pardiso": ([0.6] * 5, d),
+                                                                "peer-pardiso": ([1.0] * 5, d)}, **mem),
+         _interleaved(MEMBRANE_IMPLICIT_GROUP, "row-membrane-cg",
+                      {"engine-pcg": ([3.0] * 3, dict(solver="pcg", tol=1e-5)),
+                       "scipy": ([2.0] * 3, dict(solver="scipy-cg", tol=1e-5, assembly_s=0.1, setup_s=0.0,
+                                                 solve_s=1.9))}, **mem)]
+    (raw / "bench-t2-f64.json").write_text(json.dumps(dict(benchmarks=b)))
+    doc = report.build(raw)
+    ratios = {p["what"]: p for p in doc["peer_ratios"] if p["kind"] == "implicit"}
+    assert set(ratios) == {"tol 1e-05", f"{MEMBRANE_MODEL}, tol 1e-05"}
+    assert ratios["tol 1e-05"]["ratio"] == pytest.approx(0.5)
+    m = ratios[f"{MEMBRANE_MODEL}, tol 1e-05"]
+    assert m["engine"] == "engine-pardiso" and m["peer"] == "peer-pardiso" and m["ratio"] == pytest.approx(0.6)
+    assert m["all"]["scipy"] == pytest.approx(2.0)     # the iterative row at the same tolerance is in the comparison
+    md = report.markdown(doc, "x-")
+    assert "bench/baseline.NumpyMembrane" in md and f"{MEMBRANE_MODEL}, tol 1e-05" in md

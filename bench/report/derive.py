@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from bench import traffic
-from bench.config import MEMBRANE_MODEL
+from bench.config import MEMBRANE_IMPLICIT_GROUP, MEMBRANE_MODEL
 from bench.interleave import spread
 from engine.constants import SERIAL_BELOW
 
@@ -188,6 +188,7 @@ def build(raw_dir) -> dict:
 
 EXPLICIT_PEERS = ("numba", "warp")
 EXPLICIT_MODELS = ("springs+bending", "springs", MEMBRANE_MODEL)   # the models of the explicit rows
+STEP_GROUPS = ("cloth-implicit-step", MEMBRANE_IMPLICIT_GROUP)   # one backward-Euler step per call, per solver
 IMPLICIT_TARGET_RATIO = 0.8      # engine whole step <= 0.8 x the fastest contender (128^2, 256^2, tol 1e-5)
 SEQUENCE_TARGET_RATIO = 0.5      # over 60 consecutive steps
 EXPLICIT_TARGET_RATIO = 0.8      # engine <= 0.8 x the faster of Warp and Numba
@@ -205,7 +206,7 @@ def _implicit_rows(rows, cfg, side, tol, group="cloth-implicit-step"):
         if r.get("config") != cfg or r.get("group") != group or r.get("side") != side or not r.get("per_step_s"):
             continue
         iterative = r.get("impl") in ("engine-pcg", "scipy", "peer-pyamg-cg")
-        if group == "cloth-implicit-step" and iterative and not _close(r.get("tol"), tol):
+        if group in STEP_GROUPS and iterative and not _close(r.get("tol"), tol):
             continue
         out.append(r)
     return out
@@ -227,14 +228,15 @@ def peer_ratios(rows: list) -> list:
                     rs = [r for r in rows if r.get("config") == cfg and r.get("group") == group
                           and r.get("model") == model and r.get("side") == side and r.get("per_step_s")]
                     out.append(_ratio_entry("explicit", cfg, side, _explicit_what(model, rs), rs, EXPLICIT_PEERS))
-        for group, kind in (("cloth-implicit-step", "implicit"), ("cloth-implicit-sequence", "sequence")):
+        for group, kind, model in (("cloth-implicit-step", "implicit", ""), ("cloth-implicit-sequence", "sequence", ""),
+                                   (MEMBRANE_IMPLICIT_GROUP, "implicit", MEMBRANE_MODEL + ", ")):
             sides = sorted({r["side"] for r in rows if r.get("config") == cfg and r.get("group") == group})
             for side in sides:
                 tols = sorted({float(r["tol"]) for r in rows if r.get("config") == cfg and r.get("group") == group
                                and r.get("side") == side and r.get("tol")}, reverse=True)
                 for tol in tols:
                     rs = _implicit_rows(rows, cfg, side, tol, group)
-                    out.append(_ratio_entry(kind, cfg, side, f"tol {tol:.0e}", rs, None))
+                    out.append(_ratio_entry(kind, cfg, side, f"{model}tol {tol:.0e}", rs, None))
         # the engine's whole step against PARDISO's factorisation + solve of the same matrix alone
         for side in sorted({r["side"] for r in rows if r.get("config") == cfg and r.get("library_only")}):
             rs = [r for r in rows if r.get("config") == cfg and r.get("group") == "cloth-implicit-step"

@@ -4,6 +4,7 @@ the bandwidth floor, what was left out, and how it was measured."""
 import math
 
 from bench import traffic
+from bench.config import MEMBRANE_IMPLICIT_GROUP, MEMBRANE_MODEL
 from bench.report.derive import ALL_KERNELS, CONFIGS, STARTUP_RUNS, STEP_KERNELS, TARGET_SIDE, find, ratio_text
 from engine.constants import CFL_SAFETY
 
@@ -257,11 +258,11 @@ def _implicit_md(rows) -> list:
          "direct ones reach ~1e-13 (one row). The direct contenders of a size are one interleaved row, the "
          "iterative ones of a size and tolerance another; left out of a row: said below the table.", ""]
 
-    def table_rows(cfg, sides):
+    def table_rows(cfg, sides, group="cloth-implicit-step"):
         tr = []
         for side in sides:
             for impl in IMPLICIT_IMPLS:
-                for r in [r for r in rows if r.get("config") == cfg and r.get("group") == "cloth-implicit-step"
+                for r in [r for r in rows if r.get("config") == cfg and r.get("group") == group
                           and r.get("side") == side and r.get("impl") == impl and r.get("per_step_s")]:
                     setup = r.get("factorization_s", r.get("setup_s"))
                     split = (f"{r['assembly_s'] * 1e3:.0f} / {setup * 1e3:.0f} / {r['solve_s'] * 1e3:.0f}"
@@ -270,9 +271,14 @@ def _implicit_md(rows) -> list:
                                split, r.get("linear_iterations", "-"), _fmt(r.get("bw_fraction"), ".2f")))
         return tr
 
-    L += _per_config(lambda cfg: _sides(rows, config=cfg, group="cloth-implicit-step"), table_rows,
-                     ["cloth", "solver", "tol", "ms/step", "assembly / set-up / solve ms", "iterations",
-                      "fraction of floor"])
+    head = ["cloth", "solver", "tol", "ms/step", "assembly / set-up / solve ms", "iterations", "fraction of floor"]
+    L += _per_config(lambda cfg: _sides(rows, config=cfg, group="cloth-implicit-step"), table_rows, head)
+    msides = _sides(rows, config="t2-f64", group=MEMBRANE_IMPLICIT_GROUP)
+    if msides:
+        L += [f"The same step of the same mesh with Baraff-Witkin's stretch and shear conditions instead of springs "
+              f"and hinges ({MEMBRANE_MODEL}: k_stretch = E, k_shear = E/2; the peers assemble its PSD triangle "
+              f"blocks in numpy, bench/baseline.NumpyMembrane), t2-f64:", ""]
+        L += _table(head[:-1], [t[:-1] for t in table_rows("t2-f64", msides, MEMBRANE_IMPLICIT_GROUP)])
     seq = [r for r in rows if r.get("group") == "cloth-implicit-sequence" and r.get("per_step_s")]
     if seq:
         L += ["60 consecutive steps of the hanging cloth (tol 1e-5), ms per step:", ""]
@@ -281,7 +287,8 @@ def _implicit_md(rows) -> list:
                                                     for r in sorted(seq, key=lambda r: (r["side"], r["per_step_s"]))])
     left = {}
     for r in rows:
-        if r.get("group", "").startswith("cloth-implicit") and r.get("config") == "t2-f64":
+        if r.get("group") in ("cloth-implicit-step", "cloth-implicit-sequence", MEMBRANE_IMPLICIT_GROUP) \
+                and r.get("config") == "t2-f64":
             for impl, why in (r.get("left_out") or {}).items():
                 left.setdefault((impl, why), set()).add(r.get("side"))
     if left:
