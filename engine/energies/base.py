@@ -56,10 +56,12 @@ class Energy:
     products: frozenset = frozenset()  # of "blocks", "pair-gather", "rank-one"
     # How the explicit fast kernels can take its forces (engine.integrators.kernels): "pair-gather"
     # (spring_gather over force_args()), "slot-gather" (a per-element pass, then a per-vertex gather
-    # over force_args(): hinge_force_vectors + hinge_gather), or None (only add_forces).
+    # over force_args(): hinge_force_vectors + hinge_gather), "corner-gather" (a kernel of its own,
+    # corner_force_launch(), writes per-element corner forces into per_corner, which the step
+    # gathers over slot_incidence: engine.integrators.explicit.corner_stepper), or None (only add_forces).
     force_form: str | None = None
     pair_incidence = None       # "pair-gather": (offsets, inc_edge, inc_other) i32 ndarrays
-    slot_incidence = None       # "rank-one": (offsets, entries) i32 ndarrays, entry = k*element + slot
+    slot_incidence = None       # "rank-one", "corner-gather": (offsets, entries) i32 ndarrays, entry = k*element + slot
 
     def energy(self, x) -> float:
         """W(x)."""

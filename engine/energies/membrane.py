@@ -115,12 +115,13 @@ def positive_part(S):
 
 
 @ti.func
-def membrane_terms(model: ti.template(), wu, wv, g, A, p0, p1, psd: ti.template()):
-    """(W, [dW/dx_a], the 9 Hessian blocks H_ab as a function's inputs) of one triangle: returns W,
-    the three gradients and the 2x2 / vector pieces the blocks are built from (see :func:`block_ab`)."""
+def membrane_terms(model: ti.template(), wu, wv, A, p0, p1):
+    """(W, S, P_u, P_v) of one triangle: its energy, St. Venant-Kirchhoff's second Piola-Kirchhoff
+    stress S (2x2; zero for Baraff-Witkin), and P_u = dW/dw_u, P_v = dW/dw_v, the derivatives by
+    F's columns, so that dW/dx_a = g_a0 P_u + g_a1 P_v ((M1): P = A F S; (M2))."""
     W = 0.0
-    grads = [ti.math.vec3(0.0), ti.math.vec3(0.0), ti.math.vec3(0.0)]
     S = mat2(0.0)
+    Pu, Pv = ti.math.vec3(0.0), ti.math.vec3(0.0)
     if ti.static(model == STVK):
         mu, lam = p0, p1
         E00 = 0.5 * (wu.dot(wu) - 1.0)
@@ -129,17 +130,15 @@ def membrane_terms(model: ti.template(), wu, wv, g, A, p0, p1, psd: ti.template(
         tr = E00 + E11
         W = A * (mu * (E00 * E00 + E11 * E11 + 2.0 * E01 * E01) + 0.5 * lam * tr * tr)
         S = mat2([[lam * tr + 2.0 * mu * E00, 2.0 * mu * E01], [2.0 * mu * E01, lam * tr + 2.0 * mu * E11]])
-        for a in ti.static(range(3)):
-            Sg = S @ g[a]
-            grads[a] = A * (Sg[0] * wu + Sg[1] * wv)
+        Pu = A * (S[0, 0] * wu + S[1, 0] * wv)
+        Pv = A * (S[0, 1] * wu + S[1, 1] * wv)
     else:
         ks, kh = p0, p1
         lu, lv, s = wu.norm(), wv.norm(), wu.dot(wv)
         W = A * (0.5 * ks * ((lu - 1.0) ** 2 + (lv - 1.0) ** 2) + 0.5 * kh * s * s)
-        for a in ti.static(range(3)):
-            grads[a] = A * (ks * ((lu - 1.0) * g[a][0] * wu / lu + (lv - 1.0) * g[a][1] * wv / lv)
-                            + kh * s * (g[a][0] * wv + g[a][1] * wu))
-    return W, grads, S
+        Pu = A * (ks * (lu - 1.0) / lu * wu + kh * s * wv)
+        Pv = A * (ks * (lv - 1.0) / lv * wv + kh * s * wu)
+    return W, S, Pu, Pv
 
 
 @ti.func
@@ -178,11 +177,11 @@ def block_ab(model: ti.template(), psd: ti.template(), wu, wv, ga, gb, S, A, p0,
 
 @ti.func
 def _triangle(x: ti.template(), tris: ti.template(), Dinv: ti.template(), area: ti.template(),
-              p0: ti.template(), p1: ti.template(), model: ti.template(), psd: ti.template(), t):
+              p0: ti.template(), p1: ti.template(), model: ti.template(), t):
+    """(w_u, w_v, [g_a], W, S, P_u, P_v) of triangle t: :func:`triangle_frame` and :func:`membrane_terms`."""
     wu, wv, g0, g1, g2 = triangle_frame(x, tris, Dinv, t)
-    g = [g0, g1, g2]
-    W, grads, S = membrane_terms(model, wu, wv, g, area[t], p0[t], p1[t], psd)
-    return wu, wv, g, W, grads, S
+    W, S, Pu, Pv = membrane_terms(model, wu, wv, area[t], p0[t], p1[t])
+    return wu, wv, [g0, g1, g2], W, S, Pu, Pv
 
 
 @ti.func
@@ -200,7 +199,7 @@ def membrane_energy_kernel(x: vec3_array, tris: triangle_array, Dinv: ti.types.n
                            area: scalar_array, p0: scalar_array, p1: scalar_array, model: ti.template()) -> float:
     total = 0.0
     for t in range(tris.shape[0]):
-        wu, wv, g, W, grads, S = _triangle(x, tris, Dinv, area, p0, p1, model, False, t)
+        wu, wv, g, W, S, Pu, Pv = _triangle(x, tris, Dinv, area, p0, p1, model, t)
         total += W
     return total
 
@@ -210,19 +209,21 @@ def membrane_energies_kernel(x: vec3_array, tris: triangle_array, Dinv: ti.types
                              area: scalar_array, p0: scalar_array, p1: scalar_array, model: ti.template(),
                              out: scalar_array):
     for t in range(tris.shape[0]):
-        wu, wv, g, W, grads, S = _triangle(x, tris, Dinv, area, p0, p1, model, False, t)
+        wu, wv, g, W, S, Pu, Pv = _triangle(x, tris, Dinv, area, p0, p1, model, t)
         out[t] = W
 
 
 @ti.kernel
 def membrane_forces_kernel(x: vec3_array, tris: triangle_array, Dinv: ti.types.ndarray(dtype=mat2, ndim=1),
-                           area: scalar_array, p0: scalar_array, p1: scalar_array, model: ti.template(),
-                           ft: vec3_array2):
-    # ft[t, a] = -dW_t/dx_a
+                           area: scalar_array, p0: scalar_array, p1: scalar_array, ft: vec3_array2,
+                           model: ti.template()):
+    # ft[t, a] = -dW_t/dx_a = -(g_a0 P_u + g_a1 P_v)  (the template last: a BoundKernel launches it)
     for t in range(tris.shape[0]):
-        wu, wv, g, W, grads, S = _triangle(x, tris, Dinv, area, p0, p1, model, False, t)
-        for a in ti.static(range(3)):
-            ft[t, a] = -grads[a]
+        wu, wv, g0, g1, g2 = triangle_frame(x, tris, Dinv, t)
+        W, S, Pu, Pv = membrane_terms(model, wu, wv, area[t], p0[t], p1[t])
+        ft[t, 0] = -(g0[0] * Pu + g0[1] * Pv)
+        ft[t, 1] = -(g1[0] * Pu + g1[1] * Pv)
+        ft[t, 2] = -(g2[0] * Pu + g2[1] * Pv)
 
 
 @ti.kernel
@@ -231,7 +232,7 @@ def membrane_hessian_kernel(x: vec3_array, tris: triangle_array, Dinv: ti.types.
                             psd: ti.template(), diagonal: ti.template(), out: mat3_array2):
     # diagonal=False: out[t, 3a + b] = H_ab;  diagonal=True: out[t, a] = H_aa
     for t in range(tris.shape[0]):
-        wu, wv, g, W, grads, S = _triangle(x, tris, Dinv, area, p0, p1, model, psd, t)
+        wu, wv, g, W, S, Pu, Pv = _triangle(x, tris, Dinv, area, p0, p1, model, t)
         for a in ti.static(range(3)):
             for b in ti.static(range(3)):
                 if ti.static(not diagonal):
@@ -246,7 +247,7 @@ def membrane_products_kernel(x: vec3_array, tris: triangle_array, Dinv: ti.types
                              psd: ti.template(), dx: vec3_array, yt: vec3_array2):
     # pass 1 of out += H dx: yt[t, a] = sum_b H_ab dx[corner b]
     for t in range(tris.shape[0]):
-        wu, wv, g, W, grads, S = _triangle(x, tris, Dinv, area, p0, p1, model, psd, t)
+        wu, wv, g, W, S, Pu, Pv = _triangle(x, tris, Dinv, area, p0, p1, model, t)
         for a in ti.static(range(3)):
             y = ti.math.vec3(0.0)
             for b in ti.static(range(3)):
@@ -358,14 +359,15 @@ class MembraneEnergy(Energy):
       direction       the material direction the (u, v) frames' u axis follows (default x)
 
     As a stencil (engine/energies/base.py): k = 3, ``elements`` = the triangles, ``block`` reads
-    :meth:`hessian_blocks`' (m, 9) layout, product "blocks".
+    :meth:`hessian_blocks`' (m, 9) layout, product "blocks"; force form "corner-gather"
+    (:meth:`corner_force_launch`, ``per_corner``, ``slot_incidence``).
     """
 
     name = "membrane"
     stencil_size = 3
     block = staticmethod(membrane_block)
-    products = frozenset({"blocks"})
-    force_form = None
+    products = frozenset({"blocks", "element-blocks"})
+    force_form = "corner-gather"
 
     def __init__(self, rest_positions, triangles, model: str = "stvk", Y=None, nu=None, k_stretch=None,
                  k_shear=None, direction=(1.0, 0.0, 0.0), damping_stretch: float = 0.0, damping_shear: float = 0.0):
@@ -421,6 +423,7 @@ class MembraneEnergy(Energy):
         self.offsets.from_numpy(offsets.astype(np.int32))
         self.entries = ti.ndarray(dtype=ti.i32, shape=3 * m)
         self.entries.from_numpy(entries.astype(np.int32))
+        self.slot_incidence = (self.offsets, self.entries)
         self.n_elements = m
         self.elements = self.tris
         self.per_corner = ti.ndarray(dtype=ti.math.vec3, shape=(m, 3))
@@ -446,6 +449,13 @@ class MembraneEnergy(Energy):
             return buf
         return a
 
+    def corner_force_launch(self) -> tuple:
+        """(kernel, tail, templates): ``kernel(x, *tail, *templates)`` writes every triangle's corner
+        forces -dW_t/dx_a into ``per_corner`` (m, 3), which ``slot_incidence`` gathers per vertex
+        (the "corner-gather" force form: engine.integrators.explicit.corner_stepper launches it
+        bound)."""
+        return membrane_forces_kernel, (*self.args()[:5], self.per_corner), (self.model_code,)
+
     def args(self) -> tuple:
         return self.tris, self.Dinv, self.area, self.p0, self.p1, self.model_code
 
@@ -465,7 +475,8 @@ class MembraneEnergy(Energy):
         return self._scalars.to_numpy().astype(np.float64)
 
     def add_forces(self, x, f) -> None:
-        membrane_forces_kernel(self._vec3(x, "x"), *self.args(), self.per_corner)
+        kernel, tail, templates = self.corner_force_launch()
+        kernel(self._vec3(x, "x"), *tail, *templates)
         self._gather_into(f)
 
     def forces(self, x) -> np.ndarray:

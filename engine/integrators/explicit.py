@@ -5,7 +5,8 @@ The update formulas (E1)-(E3) are written once, in :mod:`engine.integrators.kern
 here is the method only; :class:`engine.integrators.stepper.Stepper` decides once, from the model's
 energies, which kernels a step launches and keeps the plan and the work arrays: a springs [+ one
 hinge energy] model takes one launch per symplectic-Euler or velocity-Verlet step
-(:func:`cloth_stepper`, its arrays laid out by :func:`cloth_plan`), a small spring-only model run
+(:func:`cloth_stepper`, its arrays laid out by :func:`cloth_plan`), a membrane two bound launches
+(:func:`corner_stepper`), a small spring-only model run
 by the run loop many steps per launch (:func:`many_steps`); anything else the generic path (each
 energy's force kernels, then one update pass). Each fast path is pinned bitwise to the generic
 path by tests.
@@ -33,8 +34,12 @@ from engine.model import Model, State
 def signature(model: Model) -> tuple:
     """The model's energies as the forms the fast kernels know (each energy's ``force_form``, non-empty
     ones only): ("springs",) for one pair-gather energy, ("springs", "hinges") for one pair-gather
-    energy followed by one slot-gather energy, () for anything else."""
+    energy followed by one slot-gather energy, ("corners",) for one corner-gather energy (a
+    membrane), () for anything else."""
     es = [e for e in model.energies if e.n_elements > 0]
+    if len(es) == 1 and len(model.energies) == 1 and es[0].force_form == "corner-gather" \
+            and es[0].n_vertices == model.n:
+        return ("corners",)
     if len(es) != len(model.energies) or not es or es[0].force_form != "pair-gather":
         return ()
     if len(es) == 1:
@@ -157,7 +162,7 @@ def cloth_stepper(model: Model, n_blocks: int | None = None, work: dict | None =
     if n_blocks is None:
         n_blocks = cloth_blocks(model.n)
     sig = signature(model)
-    if not sig:
+    if sig not in (("springs",), ("springs", "hinges")):
         return None
     plan = cloth_plan(model, n_blocks)
     if plan is None:
@@ -203,6 +208,57 @@ def cloth_stepper(model: Model, n_blocks: int | None = None, work: dict | None =
 
 
 CLOTH_METHODS = {"symplectic-euler": K.CLOTH_SE, "velocity-verlet": K.CLOTH_VV, "velocity-verlet-begin": K.CLOTH_VV_BEGIN}
+
+
+def corner_stepper(model: Model, work: dict | None = None):
+    """``step(state, dt, method="symplectic-euler", n_steps=1)`` for a model whose one energy has the
+    "corner-gather" force form (a membrane), with the interface of :func:`cloth_stepper`; None for
+    any other model. Each step launches the energy's per-element force kernel and
+    :func:`engine.integrators.kernels.corner_update_kernel` (gather + update), both bound
+    (:class:`engine.integrators.kernels.BoundKernel`): symplectic Euler = forces, gather + update;
+    velocity Verlet = kick-drift, forces, gather + kick; "velocity-verlet-begin" = forces, gather +
+    acceleration. The generic path launches the same force kernel, then a zeroing, a gather and an
+    update through Taichi's own call; the states are bitwise the same (tested). ``work``: the dict
+    that keeps the Verlet acceleration (a Stepper's)."""
+    if signature(model) != ("corners",):
+        return None
+    e = model.energies[0]
+    n = model.n
+    d = {} if work is None else work
+    a = d.get("corner_a")
+    if a is None or a.shape[0] != n:
+        a = d["corner_a"] = vec3_ndarray(n)
+    kernel, tail, templates = e.corner_force_launch()
+    forces = K.BoundKernel(kernel, tail, templates)
+    offsets, entries = e.slot_incidence
+    g = [float(c) for c in np.asarray(model.gravity, dtype=np.float64).reshape(3)]
+    tail = (a, e.per_corner, offsets, entries, model.inv_mass_nd, *g)
+
+    def update(method, phase):
+        return K.BoundKernel(K.corner_update_kernel, tail, (e.stencil_size, method, phase))
+    se = update(K.SYMPLECTIC_EULER, K.STEP)
+    kick_drift = update(K.VELOCITY_VERLET, K.KICK_DRIFT)
+    accel_kick = update(K.VELOCITY_VERLET, K.ACCEL_KICK)
+
+    def step(state, dt, method="symplectic-euler", n_steps=1):
+        if state.x.shape[0] != n:
+            raise ValueError(f"state has {state.x.shape[0]} vertices, model has {n}")
+        if method not in CLOTH_METHODS:
+            raise ValueError(f"method must be one of {', '.join(CLOTH_METHODS)} (got {method!r})")
+        dt = float(dt)
+        x, v = state.x, state.v
+        for _ in range(int(n_steps)):
+            if method == "symplectic-euler":
+                forces(x)
+                se(x, v, dt)
+            elif method == "velocity-verlet":
+                kick_drift(x, v, dt)
+                forces(x)
+                accel_kick(x, v, 0.5 * dt)
+            else:
+                forces(x)
+                accel_kick(x, v, 0.0)
+    return step
 MULTI_STEP_CHUNK = 1 << 20  # steps per cloth_steps launch at most (its barrier counter stays far below 2^31)
 
 
@@ -271,7 +327,8 @@ class ExplicitIntegrator:
     """Base: the update formula of one explicit method, with no state of its own. A
     :class:`engine.integrators.stepper.Stepper` drives it: ``begin(stepper, state)`` once, then
     ``advance(stepper, state, dt)`` per step, with the stepper's model, work arrays and plan
-    (``stepper.cloth``: the one-launch step, or None for the generic path). Energies and blow-ups
+    (``stepper.fast``: the one-launch cloth step or the two-pass membrane step, or None for the
+    generic path). Energies and blow-ups
     are watched by the run loop (engine.integrators.loop)."""
 
     name = "explicit"
@@ -310,16 +367,16 @@ class ForwardEuler(ExplicitIntegrator):
 
 
 class _FusedIntegrator(ExplicitIntegrator):
-    """A method the one-launch cloth step knows. ``fused`` (default): a stepper may plan that step
-    for springs [+ one hinge energy] models (one kernel launch per step, bitwise the same result);
-    otherwise, and for other models, :meth:`_generic_advance` takes the step."""
+    """A method the fast steps know. ``fused`` (default): a stepper may plan one, the one-launch
+    cloth step for springs [+ one hinge energy] models or the two-pass step for a membrane (bitwise
+    the same result); otherwise, and for other models, :meth:`_generic_advance` takes the step."""
 
     def __init__(self, fused: bool = True):
         self.fused = bool(fused)
 
     def advance(self, stepper, state, dt):
-        if stepper.cloth is not None:
-            stepper.cloth(state, dt, self.name)
+        if stepper.fast is not None:
+            stepper.fast(state, dt, self.name)
         else:
             self._generic_advance(stepper, state, dt)
         state.t += dt
@@ -346,8 +403,8 @@ class VelocityVerlet(_FusedIntegrator):
     name = "velocity-verlet"
 
     def begin(self, stepper, state):
-        if stepper.cloth is not None:
-            stepper.cloth(state, 0.0, "velocity-verlet-begin")
+        if stepper.fast is not None:
+            stepper.fast(state, 0.0, "velocity-verlet-begin")
             return
         model = stepper.model
         f = self._elastic_forces(stepper, state)

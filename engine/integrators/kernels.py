@@ -21,6 +21,9 @@ vertices and a = 0, v = 0 for pinned ones (inverse mass 0):
   of the generic path's gathers (springs by neighbour, then hinges by index), so the states are
   bitwise the same for any number of blocks and threads (tested). Its arguments are bound once
   (:class:`BoundKernel`): a step costs ~30 us of launch instead of ~0.3 ms;
+* :func:`corner_update_kernel` - the gather of a "corner-gather" energy's per-element forces
+  (membranes) fused with the update: with that energy's own force kernel, two bound launches per
+  step (engine.integrators.explicit.corner_stepper);
 * :func:`many_steps` - many steps of a spring-only model in ONE launch (the step loop
   serialised, every inner loop serial), writing each step's kinetic and potential energy and
   stopping at the first step whose total is not finite or above the bound. For small models
@@ -38,11 +41,12 @@ import taichi as ti
 
 from engine.constants import INTEGRATOR_NAMES
 from engine.energies.axial import axial_force, axial_potential
+from engine.energies.base import slot_gather
 from engine.energies.hinge import hinge_forces, hinge_frame
 from engine.energies.masses import add_gravity_potential, kinetic_energy
 from engine.energies.springs import spring_energy, spring_force, spring_gather
 from engine.solvers.thomas import axial_backward_euler
-from engine.fields import edge_array, int_array, scalar_array, vec3_array
+from engine.fields import edge_array, int_array, scalar_array, vec3_array, vec3_array2
 
 FORWARD_EULER, SYMPLECTIC_EULER, VELOCITY_VERLET, BACKWARD_EULER = 0, 1, 2, 3
 METHODS = dict(zip(INTEGRATOR_NAMES, (FORWARD_EULER, SYMPLECTIC_EULER, VELOCITY_VERLET, BACKWARD_EULER)))
@@ -115,6 +119,22 @@ def update_kernel(x: vec3_array, v: vec3_array, f: vec3_array, a: vec3_array, in
                   g: ti.math.vec3, dt: float, method: ti.template(), phase: ti.template()):
     for i in range(x.shape[0]):
         update(method, phase, i, x, v, f[i], a, inv_mass, g, dt, ti.math.vec3(0.0))
+
+
+@ti.kernel
+def corner_update_kernel(x: vec3_array, v: vec3_array, dt: float, a: vec3_array, vh: vec3_array2,
+                         offsets: int_array, entries: int_array, inv_mass: scalar_array, gx: float, gy: float,
+                         gz: float, k: ti.template(), method: ti.template(), phase: ti.template()):
+    """:func:`update` of every vertex with the force gathered from a stencil energy's per-element
+    corner forces ``vh`` over its incidence (entry = k*element + slot; KICK_DRIFT gathers nothing):
+    the generic path's gather into a zeroed f and its update pass, in one loop and the same order
+    (:func:`engine.integrators.explicit.corner_stepper`; g as three floats so that a BoundKernel
+    can launch it)."""
+    for i in range(x.shape[0]):
+        f_i = ti.math.vec3(0.0)
+        if ti.static(phase != KICK_DRIFT):
+            f_i = f_i + slot_gather(vh, offsets, entries, i, k)
+        update(method, phase, i, x, v, f_i, a, inv_mass, ti.math.vec3(gx, gy, gz), dt, ti.math.vec3(0.0))
 
 
 # --------------------------------------------------------------------------------------------

@@ -10,6 +10,9 @@ Nothing is kept per model anywhere else. Its ``path`` says what it planned:
   launch per chunk; the integrator is then a method name the scene knows;
 - ``"one-launch"``: springs [+ one hinge energy] under symplectic Euler or velocity Verlet, one
   launch per step (or one launch for many: engine.integrators.explicit.cloth_stepper);
+- ``"two-pass"``: one membrane (a "corner-gather" energy) under symplectic Euler or velocity
+  Verlet: its per-triangle force kernel, then gather + update, both launched bound
+  (engine.integrators.explicit.corner_stepper);
 - ``"generic"``: each energy's force kernels, then one update pass;
 - ``"implicit"``: backward Euler's Newton step (engine.integrators.implicit) with the stepper's solver.
 
@@ -29,7 +32,7 @@ from engine import diagnostics
 from engine.constants import MANY_STEPS_BELOW
 from engine.fields import WorkArrays
 from engine.integrators import loop
-from engine.integrators.explicit import CLOTH_METHODS, cloth_stepper, many_steps, signature
+from engine.integrators.explicit import CLOTH_METHODS, cloth_stepper, corner_stepper, many_steps, signature
 from engine.integrators.monitor import Monitor
 from engine.integrators.registry import EXPLICIT, get
 from engine.solvers import SolverError
@@ -55,7 +58,7 @@ class Stepper:
             self.name = self.integrator.name
         self.implicit = bool(getattr(self.integrator, "implicit", False))
         self.work = WorkArrays(model.n)
-        self._cloth_work: dict = {}  # the one-launch kernel's arrays (kept if the plan is made again)
+        self._fast_work: dict = {}  # the fast step's arrays (kept if the plan is made again)
         self._requested = many_steps
         self._key = None
         # an implicit integrator's linear solver solves with this stepper's set-up (pattern, analysis)
@@ -70,7 +73,7 @@ class Stepper:
 
     def _plan(self) -> None:
         self._key = self._energies_key()
-        self.cloth = None
+        self.fast = None  # the planned fast step (cloth_stepper, corner_stepper) or None
         self.many_steps = False
         self.dampers = bool(getattr(self.model, "dampers", ()))   # velocity-dependent forces: the generic path
         if self.scene_run is not None:
@@ -86,9 +89,15 @@ class Stepper:
                              f"{self.name} on energies {[e.name for e in self.model.energies]}")
         self.many_steps = spring_only and (self._requested is True or
                                            (self._requested is None and self.model.n < MANY_STEPS_BELOW))
+        self.path = "generic"
         if getattr(self.integrator, "fused", False) and self.name in CLOTH_METHODS and not self.dampers:
-            self.cloth = cloth_stepper(self.model, work=self._cloth_work)
-        self.path = "one-launch" if self.cloth is not None else "generic"
+            self.fast = cloth_stepper(self.model, work=self._fast_work)
+            self.path = "one-launch"
+            if self.fast is None:
+                self.fast = corner_stepper(self.model, work=self._fast_work)
+                self.path = "two-pass"
+            if self.fast is None:
+                self.path = "generic"
 
     def _check_plan(self) -> None:
         if self.scene_run is None and self._energies_key() != self._key:
@@ -113,8 +122,8 @@ class Stepper:
             self.scene_run(state, dt, n_steps, self.name)
             return
         self.begin(state)
-        if self.cloth is not None and n_steps > 0:
-            self.cloth(state, dt, self.name, n_steps)
+        if self.fast is not None and n_steps > 0:
+            self.fast(state, dt, self.name, n_steps)
             for _ in range(n_steps):
                 state.t += dt
             return

@@ -6,8 +6,8 @@ import math
 import taichi as ti
 
 from engine.constants import SERIAL_BELOW
-from engine.fields import (free_dot, int_array, int_array2, mat3_array, scalar_array, vec3_array, vec3_array2,
-                           vec3_ndarray, zero_pinned, zero_vec3)
+from engine.fields import (free_dot, int_array, int_array2, mat3_array, mat3_array2, scalar_array, vec3_array,
+                           vec3_array2, vec3_ndarray, zero_pinned, zero_vec3)
 from engine.model import Model
 from engine.solvers.operator import LinearSolver, LinearSolveInfo, _apply_plan, _hessian_plan, _scaled
 
@@ -103,6 +103,38 @@ def _add_rank_one(qi, i, b_off: ti.template(), b_ent: ti.template(), w: ti.templ
     return qi
 
 
+@ti.func
+def _add_element_vectors(qi, i, c_off: ti.template(), c_ent: ti.template(), yt: ti.template(), k: ti.template()):
+    # qi + (the sum over the incidence (entry = k e + slot) of yt[e, slot], summed in that order from 0):
+    # the generic path's q += gather(per-element products), in its order
+    acc = ti.math.vec3(0.0)
+    for j in range(c_off[i], c_off[i + 1]):
+        ent = c_ent[j]
+        acc += yt[ent // k, ent % k]
+    return qi + acc
+
+
+@ti.func
+def _element_product(blocks: ti.template(), elements: ti.template(), z: ti.template(), p: ti.template(), beta,
+                     yt: ti.template(), e, k: ti.template()):
+    # yt[e, a] = sum_b H_e,ab (z + beta p)[element vertex b]: one element's blocks (layout (m, k*k))
+    for a in ti.static(range(k)):
+        acc = ti.math.vec3(0.0)
+        for b in ti.static(range(k)):
+            v = elements[e, b]
+            acc += blocks[e, k * a + b] @ (z[v] + beta * p[v])
+        yt[e, a] = acc
+
+
+@ti.kernel
+def _element_products(blocks: mat3_array2, elements: int_array2, z: vec3_array, p: vec3_array, beta: float,
+                      yt: vec3_array2, k: ti.template(), serial: ti.template()):
+    # per element, its blocks times the new direction z + beta p (formed on the fly)
+    ti.loop_config(serialize=serial)
+    for e in range(elements.shape[0]):
+        _element_product(blocks, elements, z, p, beta, yt, e, k)
+
+
 @ti.kernel
 def _pcg_step(alpha: float, p: vec3_array, q: vec3_array, inv_mass: scalar_array, Pinv: mat3_array,
               y: vec3_array, r: vec3_array, z: vec3_array, serial: ti.template()) -> ti.math.vec2:
@@ -133,11 +165,13 @@ def _fused_direction_product(beta: float, z: vec3_array, p: vec3_array, p_new: v
                              mass: scalar_array, inv_mass: scalar_array, a: float,
                              s_off: int_array, s_edge: int_array, s_other: int_array, s_blocks: mat3_array,
                              b_off: int_array, b_ent: int_array, w: vec3_array2, s: scalar_array,
-                             k: ti.template(), serial: ti.template()) -> float:
+                             c_off: int_array, c_ent: int_array, yt: vec3_array2,
+                             k: ti.template(), kc: ti.template(), serial: ti.template()) -> float:
     # p_new = z + beta p ; q = a' M p_new + sum_{e ~ i} K_e (p_new_i - p_new_j) + sum_{(e, slot) ~ i} s_e w_e,slot
-    # (pair-gather blocks, e.g. springs (S4); rank-one k-vertex elements, e.g. hinges); returns p_new . q over
-    # free vertices.  p and p_new are different buffers, so the neighbours' new directions are formed
-    # from (z, p) without a race.
+    # (pair-gather blocks, e.g. springs (S4); rank-one k-vertex elements, e.g. hinges) + sum of the element
+    # products yt of a block energy (kc-vertex elements, e.g. membranes); returns p_new . q over free vertices.
+    # p and p_new are different buffers, so the neighbours' new directions are formed from (z, p) without
+    # a race.
     acc = 0.0
     ti.loop_config(serialize=serial)
     for i in range(z.shape[0]):
@@ -147,6 +181,7 @@ def _fused_direction_product(beta: float, z: vec3_array, p: vec3_array, p_new: v
             j = s_other[m]
             qi += s_blocks[s_edge[m]] @ (pi - (z[j] + beta * p[j]))
         qi = _add_rank_one(qi, i, b_off, b_ent, w, s, k)
+        qi = _add_element_vectors(qi, i, c_off, c_ent, yt, kc)
         p_new[i] = pi
         q[i] = qi
         if inv_mass[i] > 0.0:
@@ -160,7 +195,9 @@ def _pcg_whole_serial(beta0: float, rz0: float, target2: float, max_iter: ti.i32
                       mass: scalar_array, inv_mass: scalar_array, a: float, Pinv: mat3_array,
                       s_off: int_array, s_edge: int_array, s_other: int_array, s_blocks: mat3_array,
                       elements: int_array2, n_elements: ti.i32, b_off: int_array, b_ent: int_array,
-                      w: vec3_array2, s: scalar_array, k: ti.template()) -> ti.math.vec3:
+                      w: vec3_array2, s: scalar_array, c_blocks: mat3_array2, c_elements: int_array2,
+                      c_n: ti.i32, c_off: int_array, c_ent: int_array, yt: vec3_array2,
+                      k: ti.template(), kc: ti.template()) -> ti.math.vec3:
     # The whole CG loop in one serial kernel (small problems: no launch or argument overhead per
     # iteration).  Starts from r, z, p set by _pcg_restart (beta0 = 0).  Same arithmetic as the
     # fused path: p = z + beta p ; q = A' p ; alpha = r.z / p.q ; y += alpha p ; r -= alpha q ;
@@ -180,6 +217,8 @@ def _pcg_whole_serial(beta0: float, rz0: float, target2: float, max_iter: ti.i32
             for sl in ti.static(range(k)):
                 acc += w[e, sl].dot(p[elements[e, sl]])
             s[e] = acc
+        for e in range(c_n):
+            _element_product(c_blocks, c_elements, p, p, 0.0, yt, e, kc)
         pq = 0.0
         for i in range(n):
             pi = p[i]
@@ -187,6 +226,7 @@ def _pcg_whole_serial(beta0: float, rz0: float, target2: float, max_iter: ti.i32
             for m in range(s_off[i], s_off[i + 1]):
                 qi += s_blocks[s_edge[m]] @ (pi - p[s_other[m]])
             qi = _add_rank_one(qi, i, b_off, b_ent, w, s, k)
+            qi = _add_element_vectors(qi, i, c_off, c_ent, yt, kc)
             q[i] = qi
             if inv_mass[i] > 0.0:
                 pq += pi.dot(qi)
@@ -245,14 +285,19 @@ class PCGSolver(LinearSolver):
             return None
         pairs = [e for e in model.energies if "pair-gather" in e.products]
         ranks = [e for e in model.energies if "rank-one" in e.products and "pair-gather" not in e.products]
-        if len(pairs) + len(ranks) != len(model.energies) or len(pairs) > 1 or len(ranks) > 1:
+        elems = [e for e in model.energies if "element-blocks" in e.products and e not in pairs + ranks]
+        if len(pairs) + len(ranks) + len(elems) != len(model.energies) or max(len(pairs), len(ranks), len(elems)) > 1:
             return None
         if "no_pair" not in entry:
             off = ti.ndarray(dtype=ti.i32, shape=model.n + 1)  # zeros: no incidences
             i1 = ti.ndarray(dtype=ti.i32, shape=1)
+            v11 = ti.ndarray(dtype=ti.math.vec3, shape=(1, 1))
             entry["no_pair"] = (off, i1, i1, ti.ndarray(dtype=ti.math.mat3, shape=1))
             entry["no_rank"] = dict(elements=ti.ndarray(dtype=ti.i32, shape=(1, 1)), n=0, k=1, off=off, ent=i1,
-                                    w=ti.ndarray(dtype=ti.math.vec3, shape=(1, 1)), s=ti.ndarray(dtype=float, shape=1))
+                                    w=v11, s=ti.ndarray(dtype=float, shape=1))
+            entry["no_elem"] = dict(blocks=ti.ndarray(dtype=ti.math.mat3, shape=(1, 1)),
+                                    elements=ti.ndarray(dtype=ti.i32, shape=(1, 1)), n=0, k=1, off=off, ent=i1,
+                                    yt=v11)
         pair = entry["no_pair"]
         if pairs and pairs[0].n_elements:
             pair = (*pairs[0].pair_incidence, blocks[id(pairs[0])])
@@ -267,7 +312,16 @@ class PCGSolver(LinearSolver):
                                   w=ti.ndarray(dtype=ti.math.vec3, shape=(m, k)), s=ti.ndarray(dtype=float, shape=m))
             rank = entry[key]
             e.gauss_newton_factors(x, rank["w"])
-        return pair, rank
+        elem = entry["no_elem"]
+        if elems and elems[0].n_elements:
+            e = elems[0]
+            key = ("element-blocks", id(e))
+            if key not in entry:
+                off, ent = e.slot_incidence
+                entry[key] = dict(elements=e.elements, n=e.n_elements, k=e.stencil_size, off=off, ent=ent,
+                                  yt=ti.ndarray(dtype=ti.math.vec3, shape=(e.n_elements, e.stencil_size)))
+            elem = dict(entry[key], blocks=blocks[id(e)])
+        return pair, rank, elem
 
     def solve(self, model: Model, x, b, y, mass_coef: float, hess_coef: float = 1.0,
               psd: bool = True, extra=None) -> LinearSolveInfo:
@@ -304,20 +358,24 @@ class PCGSolver(LinearSolver):
         while True:
             beta = 0.0  # after a (re)start: p = z
             if whole and it < self.max_iter and rr > target2:
-                pair, rk = fused
+                pair, rk, el = fused
                 k_it, rr, bad = _pcg_whole_serial(0.0, rz, target2, self.max_iter - it, z, p, q, r, y, mass,
                                                   inv_mass, a_s, Pinv, *pair, rk["elements"], rk["n"], rk["off"],
-                                                  rk["ent"], rk["w"], rk["s"], rk["k"])
+                                                  rk["ent"], rk["w"], rk["s"], el["blocks"], el["elements"],
+                                                  el["n"], el["off"], el["ent"], el["yt"], rk["k"], el["k"])
                 it += int(k_it)
                 if bad:
                     message = "A is not positive definite on a search direction (p.Ap <= 0)"
             while not whole and it < self.max_iter and rr > target2:
                 if fused is not None:
-                    pair, rk = fused
+                    pair, rk, el = fused
                     if rk["n"]:
                         _rank_one_s(rk["w"], rk["elements"], z, p, beta, rk["s"], rk["k"], serial)
+                    if el["n"]:
+                        _element_products(el["blocks"], el["elements"], z, p, beta, el["yt"], el["k"], serial)
                     pq = _fused_direction_product(beta, z, p, p2, q, mass, inv_mass, a_s, *pair, rk["off"],
-                                                  rk["ent"], rk["w"], rk["s"], rk["k"], serial)
+                                                  rk["ent"], rk["w"], rk["s"], el["off"], el["ent"], el["yt"],
+                                                  rk["k"], el["k"], serial)
                     p, p2 = p2, p
                 else:
                     _pcg_direction(beta, z, p, mass, a_s, q, serial)  # p = z + beta p ; q = a' M p

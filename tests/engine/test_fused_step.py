@@ -1,7 +1,7 @@
 """The one-launch cloth step (engine.integrators.kernels.cloth_step) does the generic path's
 arithmetic in another order of loops but the same order of terms per vertex, so the states agree
 bit for bit: symplectic Euler and velocity Verlet, with and without bending, for any number of
-vertex blocks, launched directly or through Taichi's own call."""
+vertex blocks, launched directly or through Taichi's own call; and the two-pass membrane step likewise."""
 import numpy as np
 import pytest
 
@@ -24,7 +24,7 @@ def run(model, v0, dt, n, method, fused):
 
 def one_launch_plan(model):
     """The one-launch step a Stepper plans for symplectic Euler on ``model`` (None: generic path)."""
-    return Stepper(model, SymplecticEuler()).cloth
+    return Stepper(model, SymplecticEuler()).fast
 
 
 def start(model, seed=3, scale=0.05):
@@ -110,14 +110,16 @@ def test_many_steps_kernel_with_more_blocks_than_threads():
     assert impatient(st.x, st.v, dt, 3) == 1
 
 
-def test_direct_launch_is_taichis_launch(monkeypatch):
-    """The bound launch sets the same arguments as Taichi's own kernel call: the same bits."""
-    model = cloth(10, B=1e-3).model
+@pytest.mark.parametrize("scene,method", [("cloth", "symplectic-euler"), ("membrane", "velocity-verlet")])
+def test_direct_launch_is_taichis_launch(monkeypatch, scene, method):
+    """The bound launch sets the same arguments as Taichi's own kernel call: the same bits (the
+    one-launch cloth step, and the two-pass membrane step)."""
+    model = cloth(10, B=1e-3).model if scene == "cloth" else _membrane_cloth(10, "baraff-witkin")
     v0 = start(model, seed=7)
     dt = 0.5 * stable_dt_estimate(model)
-    xa, va, _ = run(model, v0, dt, 30, "symplectic-euler", True)
+    xa, va, _ = run(model, v0, dt, 30, method, True)
     monkeypatch.setattr(K, "DIRECT_LAUNCH", False)
-    xb, vb, _ = run(model, v0, dt, 30, "symplectic-euler", True)
+    xb, vb, _ = run(model, v0, dt, 30, method, True)
     assert np.array_equal(xa, xb) and np.array_equal(va, vb)
 
 
@@ -128,12 +130,12 @@ def test_new_spring_coefficients_reach_the_fused_step():
     v0 = start(model, seed=9)
     dt = 0.25 * stable_dt_estimate(model)
     stepper = Stepper(model, SymplecticEuler(True))
-    first = stepper.cloth
+    first = stepper.fast
     stepper.step(model.make_state(None, v0), dt, 5)   # the plan for the first c
     c.springs.set_coefficients(2.0 * c.springs.c_np)
     st = model.make_state(None, v0)
     stepper.step(st, dt, 30)
-    assert stepper.cloth is not first
+    assert stepper.fast is not first
     xa, va = st.numpy().x, st.numpy().v
     xb, vb, _ = run(model, v0, dt, 30, "symplectic-euler", False)
     assert np.array_equal(xa, xb) and np.array_equal(va, vb)
@@ -202,3 +204,41 @@ def test_the_hinge_angle_is_atan2_to_an_ulp():
     ulp = np.spacing(np.abs(ref).astype(fdt))
     assert np.all(np.abs(got - ref) <= ulp) and got[-3] == 0.0
     assert np.mean(np.abs(y) < np.abs(x) / 8) > 0.3  # the polynomial's branch is exercised
+
+
+# -- the two-pass membrane step (engine.integrators.explicit.corner_stepper) -----------------------
+
+def _membrane_cloth(side, model_name, damping=0.0):
+    from engine.energies.membrane import MembraneEnergy
+    c = cloth(side, B=0.0)
+    model = Model(c.model.X, mass=c.model.mass, pinned=np.flatnonzero(c.model.pinned), gravity=c.model.gravity)
+    params = (dict(Y=1e3, nu=0.3) if model_name == "stvk" else
+              dict(k_stretch=1e3, k_shear=5e2, damping_stretch=damping, damping_shear=damping))
+    model.add_energy(MembraneEnergy.from_mesh(c.mesh, model_name, **params))
+    return model
+
+
+@pytest.mark.parametrize("method", list(INTEGRATORS))
+@pytest.mark.parametrize("model_name", ["stvk", "baraff-witkin"])
+def test_two_pass_membrane_step_is_bitwise_the_generic_step(model_name, method):
+    """A membrane model takes the two-pass step (its triangle kernel, then gather + update in one
+    loop, both bound launches): the same bits as the generic path (forces kernel, zeroing, gather,
+    update through Taichi's own call), launched directly or through Taichi's call."""
+    model = _membrane_cloth(12, model_name)
+    stepper = Stepper(model, INTEGRATORS[method]())
+    assert stepper.path == "two-pass"
+    v0 = start(model, seed=4)
+    dt = 0.5 * stable_dt_estimate(model)
+    xa, va, ta = run(model, v0, dt, 120, method, True)
+    xb, vb, tb = run(model, v0, dt, 120, method, False)
+    assert np.array_equal(xa, xb) and np.array_equal(va, vb) and ta == tb
+    assert np.abs(xa - model.X).max() > 1e-3
+    assert np.array_equal(xa[model.pinned], model.X[model.pinned]) and not va[model.pinned].any()
+
+
+def test_damped_membranes_and_forward_euler_take_the_generic_path():
+    """Baraff-Witkin damping is velocity-dependent (the generic path adds -D v); forward Euler has no
+    fast step: both are planned generic."""
+    from engine.integrators.explicit import ForwardEuler
+    assert Stepper(_membrane_cloth(6, "baraff-witkin", damping=1.0), SymplecticEuler()).path == "generic"
+    assert Stepper(_membrane_cloth(6, "baraff-witkin"), ForwardEuler()).path == "generic"

@@ -84,8 +84,22 @@ def _variants():
     return [pytest.param(v, marks=needs_pardiso) if v == "pardiso" else v for v in SOLVER_VARIANTS]
 
 
+def membrane(model_name="baraff-witkin", N=6, seed=2):
+    """An N x N sheet with a membrane energy alone ("element-blocks": the PCG's fused paths take its
+    per-triangle blocks), pinned at two corners, crumpled."""
+    from engine.energies.membrane import MembraneEnergy
+    m3 = mesh.embed_3d(mesh.right_triangle_grid(N, N, 1.0, 1.0))
+    X = m3.vertices
+    model = Model(X, mass=mesh.lumped_masses(m3, 0.2), pinned=[0, N - 1], gravity=[0, 0, -9.81])
+    params = dict(k_stretch=300.0, k_shear=150.0) if model_name == "baraff-witkin" else dict(Y=300.0, nu=0.3)
+    model.add_energy(MembraneEnergy.from_mesh(m3, model_name, **params))
+    x = X + 0.03 * np.random.default_rng(seed).standard_normal(X.shape)
+    return model, x
+
+
 SCENES = {"springs": spring_network, "cloth": cloth, "bending": lambda: cloth(springs=None),
-          "cloth-plain": lambda: cloth(springs=PlainSprings, bending=PlainBending)}
+          "cloth-plain": lambda: cloth(springs=PlainSprings, bending=PlainBending),
+          "membrane": membrane, "membrane-stvk": lambda: membrane("stvk")}
 
 
 @pytest.mark.parametrize("variant", _variants())
@@ -292,3 +306,22 @@ def test_extra_hessian_term(name):
     y_ref = np.linalg.solve(A, b.reshape(-1)[free])
     assert info.converged
     assert np.abs(y.to_numpy().reshape(-1)[free] - y_ref).max() <= 1e-8 * np.abs(y_ref).max()
+
+
+def test_a_membrane_takes_the_fused_pcg_paths():
+    """A membrane ("element-blocks") alone is planned on the PCG's fused paths (its blocks gathered per
+    vertex inside the direction-product kernel, or inside the whole-loop kernel); membrane + springs is
+    not (one element-blocks energy alone, or with at most one pair-gather and one rank-one energy)."""
+    solver = solvers.PCGSolver(1e-10)
+    model, x = membrane()
+    x_nd = vec3_ndarray(model.n, x)
+    blocks = {}
+    solvers.operator._hessian_plan(model, x_nd, True, None, blocks)
+    fused = solver._fused_setup(model, solver._work(model), x_nd, True, blocks)
+    assert fused is not None and fused[2]["n"] == model.energies[0].n_elements and fused[2]["k"] == 3
+    assert solver._fused_setup(model, solver._work(model), x_nd, False, blocks) is None   # exact Hessian: generic
+    two, _ = membrane()
+    two.add_energy(two.energies[0])
+    blocks = {}
+    solvers.operator._hessian_plan(two, x_nd, True, None, blocks)
+    assert solver._fused_setup(two, solver._work(two), x_nd, True, blocks) is None
