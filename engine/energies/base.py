@@ -22,6 +22,9 @@ offers to the PCG solver (:mod:`engine.solvers`):
                    :meth:`gauss_newton_factors` writes w_e (k vec3 per element) and
                    ``slot_incidence`` is the CSR pair (offsets (n+1,), entries) listing, per
                    vertex, k*element + slot in increasing element order.
+``"element-blocks"`` :meth:`hessian_blocks` is (m, k*k) mat3 with H_e,ab at [e, k a + b] (membranes):
+                   the PCG's fused paths multiply each element's blocks by the direction and
+                   gather the products per vertex over ``slot_incidence``.
 """
 import numpy as np
 import taichi as ti
@@ -53,7 +56,7 @@ class Energy:
     n_elements: int = 0         # m
     elements = None             # (max(m, 1), k) i32 ndarray of element vertices
     block = None                # ti.func block(blocks, e, a: template, b: template) -> mat3 H_e,ab
-    products: frozenset = frozenset()  # of "blocks", "pair-gather", "rank-one"
+    products: frozenset = frozenset()  # of "blocks", "pair-gather", "rank-one", "element-blocks"
     # How the explicit fast kernels can take its forces (engine.integrators.kernels): "pair-gather"
     # (spring_gather over force_args()), "slot-gather" (a per-element pass, then a per-vertex gather
     # over force_args(): hinge_force_vectors + hinge_gather), "corner-gather" (a kernel of its own,
@@ -61,7 +64,8 @@ class Energy:
     # gathers over slot_incidence: engine.integrators.explicit.corner_stepper), or None (only add_forces).
     force_form: str | None = None
     pair_incidence = None       # "pair-gather": (offsets, inc_edge, inc_other) i32 ndarrays
-    slot_incidence = None       # "rank-one", "corner-gather": (offsets, entries) i32 ndarrays, entry = k*element + slot
+    slot_incidence = None       # "rank-one", "element-blocks", "corner-gather": (offsets, entries) i32 ndarrays,
+    #                             entry = k*element + slot
 
     def energy(self, x) -> float:
         """W(x)."""

@@ -29,17 +29,18 @@ Four names share one interface (:func:`make_solver`):
               Jacobi preconditioner from each energy's add_hessian_diagonal (plus a m_i I).
               The code path is chosen per solve from the products the energies declare
               (``Energy.products``, engine/energies/base.py):
-              * whole-loop (at most one "pair-gather" energy, e.g. springs, and at most one
-                "rank-one" energy, e.g. bending, nothing else; psd; below SERIAL_BELOW
-                vertices): the entire CG loop is one serial kernel: pair blocks K_e
-                (hessian_blocks, once per solve) gathered per vertex over the energy's
-                pair_incidence, the rank-one energy as its Gauss-Newton factors w_e
-                (H_e = w_e w_e^T, gauss_newton_factors, once per solve) gathered over its
-                slot_incidence, dot products, axpys and the preconditioner fused.  No launch
-                per iteration.
-              * fused parallel (same energies, larger meshes): three launches per iteration
-                (per-element s_e = w_e . p; per-vertex direction + product + p.q; step +
-                preconditioner + r.z, r.r).
+              * whole-loop (at most one "pair-gather" energy, e.g. springs, at most one
+                "rank-one" energy, e.g. bending, and at most one "element-blocks" energy,
+                e.g. a membrane, nothing else; psd; below SERIAL_BELOW vertices): the entire
+                CG loop is one serial kernel: pair blocks K_e (hessian_blocks, once per solve)
+                gathered per vertex over the energy's pair_incidence, the rank-one energy as
+                its Gauss-Newton factors w_e (H_e = w_e w_e^T, gauss_newton_factors, once per
+                solve) gathered over its slot_incidence, the element blocks' products
+                likewise, dot products, axpys and the preconditioner fused.  No launch per
+                iteration.
+              * fused parallel (same energies, larger meshes): three or four launches per
+                iteration (per-element s_e = w_e . p and/or H_e p; per-vertex direction +
+                product + p.q; step + preconditioner + r.z, r.r).
               * generic (any energies, exact Hessian, extra term): each energy's
                 add_block_product ("blocks" energies, blocks computed once per solve) or
                 add_hessian_product, 4 + per-energy launches.

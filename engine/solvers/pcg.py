@@ -252,7 +252,8 @@ class PCGSolver(LinearSolver):
     """Matrix-free block-Jacobi preconditioned CG with Baraff-Witkin filtering (module docstring).
 
     Fast paths (``fused=True``), used when the model's energies are at most one declaring the
-    "pair-gather" product (springs) and at most one declaring "rank-one" (bending), nothing else,
+    "pair-gather" product (springs), at most one declaring "rank-one" (bending) and at most one
+    declaring "element-blocks" (a membrane: per-element H_e p, then gathered), nothing else,
     and psd=True: below SERIAL_BELOW vertices (or ``serial=True``) the whole CG loop is one serial
     kernel; otherwise three parallel launches per iteration (per-element s_e = w_e . p with the
     rank-one Gauss-Newton Hessian H_e = w_e w_e^T; per-vertex direction p = z + beta p,
