@@ -137,7 +137,6 @@ def relaxed_stiffness_2d(mesh, blocks: np.ndarray, c: np.ndarray, window: np.nda
     free, fixed = np.flatnonzero(~bd), np.flatnonzero(bd)
     lu = spla.splu(K[free][:, free].tocsc())
     K_fb = K[free][:, fixed]
-    T = mesh.triangles
     area = np.abs(mesh.element_measures)
     share = (area[window] / 3.0)[:, None] / mesh.edge_measure[mesh.element_edges[window]]  # (tw, 3)
     tw_edges = mesh.element_edges[window]

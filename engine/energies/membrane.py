@@ -82,15 +82,29 @@ def lame(Y, nu) -> tuple:
 # --------------------------------------------------------------------------------------------
 
 @ti.func
+def deformation_gradient(d1, d2, D):
+    """(w_u, w_v), the columns of F = [d1, d2] Dm^-1 (F1), for the deformed edges d1 = x1 - x0,
+    d2 = x2 - x0 and D = Dm^-1 (the membranes exercise's first function)."""
+    return d1 * D[0, 0] + d2 * D[1, 0], d1 * D[0, 1] + d2 * D[1, 1]
+
+
+@ti.func
 def triangle_frame(x: ti.template(), tris: ti.template(), Dinv: ti.template(), t):
     """(w_u, w_v, g0, g1, g2) of triangle t (F1): F's columns and the corners' gradient rows."""
     x0 = x[tris[t, 0]]
-    d1 = x[tris[t, 1]] - x0
-    d2 = x[tris[t, 2]] - x0
     D = Dinv[t]
+    wu, wv = deformation_gradient(x[tris[t, 1]] - x0, x[tris[t, 2]] - x0, D)
     g1 = vec2(D[0, 0], D[0, 1])
     g2 = vec2(D[1, 0], D[1, 1])
-    return d1 * D[0, 0] + d2 * D[1, 0], d1 * D[0, 1] + d2 * D[1, 1], -(g1 + g2), g1, g2
+    return wu, wv, -(g1 + g2), g1, g2
+
+
+@ti.func
+def baraff_witkin_stress(wu, wv, A, ks, kh):
+    """(dW/dw_u, dW/dw_v) of Baraff and Witkin's energy (M2) of one triangle (the membranes
+    exercise's second function)."""
+    lu, lv, s = wu.norm(), wv.norm(), wu.dot(wv)
+    return A * (ks * (lu - 1.0) / lu * wu + kh * s * wv), A * (ks * (lv - 1.0) / lv * wv + kh * s * wu)
 
 
 @ti.func
@@ -136,8 +150,7 @@ def membrane_terms(model: ti.template(), wu, wv, A, p0, p1):
         ks, kh = p0, p1
         lu, lv, s = wu.norm(), wv.norm(), wu.dot(wv)
         W = A * (0.5 * ks * ((lu - 1.0) ** 2 + (lv - 1.0) ** 2) + 0.5 * kh * s * s)
-        Pu = A * (ks * (lu - 1.0) / lu * wu + kh * s * wv)
-        Pv = A * (ks * (lv - 1.0) / lv * wv + kh * s * wu)
+        Pu, Pv = baraff_witkin_stress(wu, wv, A, ks, kh)
     return W, S, Pu, Pv
 
 

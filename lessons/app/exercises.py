@@ -31,8 +31,8 @@ import taichi as ti
 '''
 
 TI_FUNC_RULES = """Functions marked @ti.func are Taichi functions: they run inside the engine's kernels, once per
-spring, hinge or vertex. Use Taichi's math on their arguments (d.norm(), a.dot(b), a.cross(b),
-n.outer_product(n), ti.math.eye(3), ti.math.vec3(0.0), ti.sqrt, ti.atan2); `if` and `for` are
+spring, hinge, triangle or vertex. Use Taichi's math on their arguments (d.norm(), a.dot(b),
+a.cross(b), n.outer_product(n), ti.math.eye(3), ti.math.vec3(0.0), ti.sqrt, ti.atan2); `if` and `for` are
 fine; numpy, Python lists and print are not. Give each function one `return`, at its end
 (set the result before an `if`, then change it inside)."""
 

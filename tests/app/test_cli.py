@@ -1,6 +1,5 @@
 """The command line: list, help, runs, results JSON, and one-line errors for bad input."""
 import io
-import json
 import re
 import sys
 
@@ -275,7 +274,6 @@ def test_pause_stops_at_end_of_input_and_keeps_the_exit_code_of_what_ran(monkeyp
 
 
 def test_pause_with_all_pauses_between_stages_and_between_lessons(monkeypatch, tmp_path, capsys):
-    import lessons.app.cli as cli_mod
     from lessons.app import registry
     first, second = registry.all_lessons()[:2]
     n = len(registry.all_lessons())

@@ -27,7 +27,6 @@ the range; a newline in an argument made the error message two lines.
 import contextlib
 import dataclasses
 import io
-import json
 import math
 import os
 import re

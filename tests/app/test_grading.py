@@ -17,7 +17,7 @@ import pytest
 from tests.helpers import ROOT
 
 PACKAGES = {"springs": "springs", "rod-waves": "rod_waves", "area-springs": "area_springs", "bending": "bending",
-            "explicit-vs-implicit": "explicit_vs_implicit"}
+            "explicit-vs-implicit": "explicit_vs_implicit", "membranes": "membranes"}
 
 
 def lessons_cli(*args, cwd, timeout=900):
@@ -78,7 +78,7 @@ def test_the_template_as_written_fails_with_one_line_per_function(tmp_path):
     assert r.returncode == 1, r.stderr
     assert r.stderr == "" or "Traceback" not in r.stderr
     written = [line for line in r.stdout.splitlines() if "not written yet" in line]
-    assert len(written) == 13   # springs 6, rod-waves 1, area-springs 1, bending 2, explicit-vs-implicit 3
+    assert len(written) == 15   # springs 6, rod-waves 1, area-springs 1, bending 2, explicit-vs-implicit 3, membranes 2
     doc = json.loads((tmp_path / "out.json").read_text())
     assert doc["failed"] == len(doc["experiments"]) and doc["passed"] == 0
     assert {row["lesson"] for row in doc["experiments"]} == set(PACKAGES)

@@ -1,5 +1,4 @@
 """Recorder: round trip through an .rrd file, static topology once, atomic writes."""
-import os
 import signal
 import subprocess
 import sys

@@ -10,7 +10,6 @@ import math
 
 import numpy as np
 import pytest
-import rerun.blueprint as rrb
 
 from lessons.app.blueprint import FOV_Y
 from lessons.app.recorder import summarize

@@ -10,7 +10,7 @@ import pytest
 
 from lessons._exercise import load_student_module
 
-LESSONS = ["springs", "rod_waves", "area_springs", "bending", "explicit_vs_implicit"]
+LESSONS = ["springs", "rod_waves", "area_springs", "bending", "explicit_vs_implicit", "membranes"]
 
 # (lesson package, the reference's line, the wrong line, the experiment that catches it, words of
 # its reason): each mistake a student makes, and where the grader says so
@@ -49,6 +49,15 @@ WRONG = [
      "ex-newton-residual", "leaves out dt v_n"),
     ("explicit_vs_implicit", "return (x_new - x_n) / dt", "return (x_new - x_n) / (dt * dt)",
      "ex-step-velocity", "divides by dt^2"),
+    ("membranes", "return w_u, w_v", "return w_v, w_u", "ex-deformation-gradient", "returns (w_v, w_u)"),
+    ("membranes", "w_v = d1 * Dinv[0, 1] + d2 * Dinv[1, 1]", "w_v = d1 * Dinv[1, 0] + d2 * Dinv[1, 1]",
+     "ex-deformation-gradient", "gives w_v ="),
+    ("membranes", "dW_dwu = A * (k_stretch * (lu - 1.0) * w_u / lu + k_shear * s * w_v)",
+     "dW_dwu = A * (k_stretch * (lu - 1.0) * w_u / lu)", "ex-bw-stress", "leaves out the shear term"),
+    ("membranes", "dW_dwv = A * (k_stretch * (lv - 1.0) * w_v / lv + k_shear * s * w_u)",
+     "dW_dwv = A * (k_stretch * (lv - 1.0) * w_v + k_shear * s * w_u)", "ex-bw-stress", "along the unit vector"),
+    ("membranes", "dW_dwu = A * (k_stretch * (lu - 1.0) * w_u / lu + k_shear * s * w_v)",
+     "dW_dwu = A * (k_stretch * (lu - 1.0) * w_u / lu + k_shear * s * w_u)", "ex-bw-stress", "wrong column"),
 ]
 
 

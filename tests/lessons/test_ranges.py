@@ -214,14 +214,14 @@ def test_springs_round_off_floor_scales_the_hanging_tolerance():
 def test_rod_default_pulse_is_a_length_so_fine_rods_resolve_it_better():
     """--nodes 10001 failed: a pulse of 10 spacings disperses over the 5000 spacings it crosses;
     the default pulse is 1 cm, 100 spacings there, and the grid's predicted slowdown shrinks."""
-    from lessons.rod_waves import stages as S
+    from lessons.rod_waves import scene, stages as S
     cfg = LESSONS["rod-waves"].config(nodes=10001)
     h = 1e-4
-    assert S.pulse_width(cfg, h) == 0.01
+    assert scene.pulse_width(cfg, h) == 0.01
     assert S.dispersion_spread(0.5, h, 0.01, 0.4) < 0.1 < 0.3 < S.dispersion_spread(0.5, h, 10 * h, 0.4)
-    assert S.pulse_width(LESSONS["rod-waves"].config(), 1e-3) == 10 * 1e-3  # the defaults' 10 spacings
-    assert S.pulse_width(LESSONS["rod-waves"].config(nodes=201), 5e-3) == 0.05  # coarse grids keep 10 spacings
-    assert S.pulse_width(LESSONS["rod-waves"].config(width=2.0), 1e-3) == 2e-3  # --width counts spacings
+    assert scene.pulse_width(LESSONS["rod-waves"].config(), 1e-3) == 10 * 1e-3  # the defaults' 10 spacings
+    assert scene.pulse_width(LESSONS["rod-waves"].config(nodes=201), 5e-3) == 0.05  # coarse grids keep 10 spacings
+    assert scene.pulse_width(LESSONS["rod-waves"].config(width=2.0), 1e-3) == 2e-3  # --width counts spacings
 
 
 def test_rod_stencil_check_at_50001_nodes_passes_to_the_spacings_round_off():
@@ -322,10 +322,10 @@ def test_progress_bar_waits_for_a_long_run():
 def test_rod_quiet_runs_in_launches_step_exactly_as_one_launch(monkeypatch):
     from engine import runtime
     from engine.scenes import Rod
-    from lessons.rod_waves import stages as S
+    from lessons.rod_waves import scene, stages as S
     runtime.init()
     rod = Rod.uniform(101, 1.0, 1.0, 1.0)
-    u0 = S.gaussian(rod.p, 0.5, 0.05, 1e-3)
+    u0 = scene.gaussian(rod.p, 0.5, 0.05, 1e-3)
     one, chunked = rod.new_state(u0), rod.new_state(u0)
     dt = 0.99 * float(rod.h[0])
     rod.run(one, dt, 1000, "symplectic-euler")
