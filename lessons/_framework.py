@@ -386,7 +386,7 @@ class StageContext:
 def run_lesson(lesson: Lesson, cfg, rec, stages: list[int] | None = None, out=sys.stdout,
                err=sys.stderr, quiet: bool = False, results: list | None = None,
                stepping: Stepping | None = None,
-               between: Callable[[int, str], bool] | None = None) -> bool:
+               between: Callable[[int, str], bool] | None = None, collected: dict | None = None) -> bool:
     """Run the chosen stages (in the order given; default: every stage); print and record each
     stage's table; return all-passed (of the stages that ran).
 
@@ -396,6 +396,9 @@ def run_lesson(lesson: Lesson, cfg, rec, stages: list[int] | None = None, out=sy
     ``between``: called after each stage but the last with the next stage's (1-based) index and
     title, e.g. to wait for the user; when it returns False the run ends there (the remaining
     stages are skipped, and the result is that of the stages run so far).
+
+    ``collected``: a dict that receives, per stage index, (its Experiments, the stage's
+    integrator notes), for callers that look at more than the results' rows (the tests).
     """
     results = results if results is not None else []
     all_passed = True
@@ -435,6 +438,8 @@ def run_lesson(lesson: Lesson, cfg, rec, stages: list[int] | None = None, out=sy
             d = e.to_dict(lesson.id, index, stage.title)
             d["integrators"] = sorted({u.split(": ", 1)[1] for u in ctx.integrators_used})
             results.append(d)
+        if collected is not None:
+            collected[index] = (experiments, list(ctx.integrators_used))
         all_passed &= all(e.passed for e in experiments)
     return all_passed
 

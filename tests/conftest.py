@@ -1,6 +1,8 @@
-"""Shared fixtures: one Taichi runtime per test session (CPU, 2 threads, f64), and the default
-recordings of every lesson, made once per session for the tests that inspect them."""
+"""Shared fixtures: one Taichi runtime per test session (CPU, 2 threads, f64), and every lesson
+run once per session at its defaults with its recording, for the tests that inspect either."""
 import io
+from pathlib import Path
+from typing import NamedTuple
 
 import pytest
 
@@ -12,24 +14,50 @@ def taichi_runtime():
     return runtime.init()
 
 
+class DefaultRun(NamedTuple):
+    """One lesson run at its defaults with its recording."""
+    path: Path        # the .rrd
+    rec: object       # the Recorder that wrote it (its plan is what the blueprint was built from)
+    stages: dict      # {stage index: {experiment id: Experiment}}
+    used: dict        # {stage index: the stage's integrator notes}
+
+
 @pytest.fixture(scope="session")
-def default_recordings(tmp_path_factory):
-    """{lesson id: (path of its .rrd, the Recorder that wrote it)}: every lesson run at its
-    defaults, as ``python -m lessons run all`` records it (the recorder's plan is what the
-    blueprint was built from)."""
+def default_runs(tmp_path_factory):
+    """``get(lesson id) -> DefaultRun``: the lesson run once per session at its defaults, as
+    ``python -m lessons run`` records it; the recording tests and the lessons' own tests share it."""
     from lessons.app import registry
     from lessons._framework import run_lesson
     from lessons.app.cli import _make_recorder
 
     out_dir = tmp_path_factory.mktemp("recordings")
     made = {}
-    for lesson in registry.all_lessons():
-        path = out_dir / f"{lesson.id}.rrd"
-        rec = _make_recorder(lesson, path)
-        try:
-            passed = run_lesson(lesson, lesson.config(), rec, None, out=io.StringIO(), err=io.StringIO(), quiet=True)
-        finally:
-            rec.close()
-        assert passed, f"{lesson.id}: an experiment failed at the defaults"
-        made[lesson.id] = (path, rec)
-    return made
+
+    def get(lesson_id: str) -> DefaultRun:
+        if lesson_id not in made:
+            lesson = registry.get(lesson_id)
+            path = out_dir / f"{lesson.id}.rrd"
+            rec = _make_recorder(lesson, path)
+            collected = {}
+            try:
+                passed = run_lesson(lesson, lesson.config(), rec, None, out=io.StringIO(), err=io.StringIO(),
+                                    quiet=True, collected=collected)
+            finally:
+                rec.close()
+            failed = [(e.id, e.measured, e.theory, e.reason) for exps, _ in collected.values() for e in exps
+                      if not e.passed]
+            assert passed and not failed, f"{lesson.id}: experiments failed at the defaults: {failed}"
+            stages = {}
+            for index, (exps, _) in collected.items():
+                stages[index] = {e.id: e for e in exps}
+                assert len(stages[index]) == len(exps), f"duplicate experiment ids: {[e.id for e in exps]}"
+            made[lesson_id] = DefaultRun(path, rec, stages, {i: used for i, (_, used) in collected.items()})
+        return made[lesson_id]
+    return get
+
+
+@pytest.fixture(scope="session")
+def default_recordings(default_runs):
+    """{lesson id: (path of its .rrd, the Recorder that wrote it)} for every lesson (default_runs)."""
+    from lessons.app import registry
+    return {lesson.id: tuple(default_runs(lesson.id)[:2]) for lesson in registry.all_lessons()}

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from engine.errors import ParameterError
-from lessons.app.recorder import Recorder, summarize
+from lessons.app.recorder import summarize
 from lessons._framework import validate_config
 from lessons.bending import LESSON, BendingConfig
 from lessons.bending.stages import closed_form_ratio
@@ -19,12 +19,9 @@ from tests.helpers import assert_all_passed, assert_unique_ids, cli, run_stage
 
 
 @pytest.fixture(scope="module")
-def recording(tmp_path_factory):
-    path = tmp_path_factory.mktemp("bending") / "bending.rrd"
-    rec = Recorder(path, "test_bending", camera=LESSON.camera)
-    stages = {i: run_stage(LESSON, i, rec=rec) for i in range(1, len(LESSON.stages) + 1)}
-    rec.close()
-    return stages, path, rec
+def recording(default_runs):
+    run = default_runs(LESSON.id)   # every stage at the defaults, as `run` records it (shared)
+    return run.stages, run.path, run.rec
 
 
 @pytest.fixture(scope="module")

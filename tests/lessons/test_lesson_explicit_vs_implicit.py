@@ -12,7 +12,7 @@ from engine.solvers import pardiso_available
 
 from engine.constants import G
 from engine.errors import ParameterError
-from lessons.app.recorder import Recorder, summarize
+from lessons.app.recorder import summarize
 from lessons._framework import validate_config
 from lessons.explicit_vs_implicit import LESSON, ExplicitImplicitConfig
 from engine.theory.schemes import symplectic_euler_growth
@@ -21,15 +21,9 @@ from tests.helpers import assert_all_passed, assert_unique_ids, run_stage
 
 
 @pytest.fixture(scope="module")
-def recording(tmp_path_factory):
-    path = tmp_path_factory.mktemp("explicit_vs_implicit") / "evi.rrd"
-    rec = Recorder(path, "test_explicit_vs_implicit", camera=LESSON.camera)
-    stages, used = {}, {}
-    for i in range(1, len(LESSON.stages) + 1):
-        used[i] = []
-        stages[i] = run_stage(LESSON, i, rec=rec, used=used[i])
-    rec.close()
-    return stages, used, path, rec
+def recording(default_runs):
+    run = default_runs(LESSON.id)   # every stage at the defaults, as `run` records it (shared)
+    return run.stages, run.used, run.path, run.rec
 
 
 @pytest.fixture(scope="module")

@@ -8,8 +8,8 @@ from tests.helpers import assert_all_passed, assert_unique_ids, run_stage
 
 
 @pytest.fixture(scope="module")
-def stages():
-    return {i: run_stage(LESSON, i) for i in range(1, len(LESSON.stages) + 1)}
+def stages(default_runs):
+    return default_runs(LESSON.id).stages   # every stage at the defaults, shared with the recording tests
 
 
 def test_experiment_ids_are_unique_in_the_lesson(stages, backward):

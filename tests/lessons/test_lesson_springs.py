@@ -149,17 +149,9 @@ def test_fused_bad_input():
 # the lesson
 # ------------------------------------------------------------------------------------------
 
-class _Stages(dict):
-    """Each stage runs once, when a test first asks for it."""
-
-    def __missing__(self, index):
-        self[index] = run_stage(LESSON, index)
-        return self[index]
-
-
 @pytest.fixture(scope="module")
-def stages():
-    return _Stages()
+def stages(default_runs):
+    return default_runs(LESSON.id).stages   # every stage at the defaults, shared with the recording tests
 
 
 def test_lesson_is_registered():
