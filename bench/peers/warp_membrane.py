@@ -14,6 +14,7 @@ import numpy as np
 
 from bench import peers
 from bench.peers.warp_cloth import WarpStepper, _warp
+from bench.peers.warp_cloth import _build as _build_cloth
 
 _kernels: dict = {}
 
@@ -50,14 +51,21 @@ def _build(dtype):
         ft[t, 2] = f2
         ft[t, 0] = -(f1 + f2)
 
-    @wp.kernel(**opts)
-    def kick_kernel(v: wp.array(dtype=vec), inv_mass: wp.array(dtype=scalar), g: vec, dt: scalar,
-                    offsets: wp.array(dtype=wp.int32), entries: wp.array(dtype=wp.int32), ft: wp.array2d(dtype=vec)):
-        i = wp.tid()
+    @wp.func
+    def corner_sum(offsets: wp.array(dtype=wp.int32), entries: wp.array(dtype=wp.int32),
+                   ft: wp.array2d(dtype=vec), i: int):
+        # vertex i's corner forces, in the order of its incidence (entry = 3 triangle + corner)
         f = vec()
         for kk in range(offsets[i], offsets[i + 1]):
             ent = entries[kk]
             f = f + ft[ent // 3, ent % 3]
+        return f
+
+    @wp.kernel(**opts)
+    def kick_kernel(v: wp.array(dtype=vec), inv_mass: wp.array(dtype=scalar), g: vec, dt: scalar,
+                    offsets: wp.array(dtype=wp.int32), entries: wp.array(dtype=wp.int32), ft: wp.array2d(dtype=vec)):
+        i = wp.tid()
+        f = corner_sum(offsets, entries, ft, i)
         w = inv_mass[i]
         if w > scalar(0.0):
             v[i] = v[i] + dt * (w * f + g)
@@ -65,23 +73,14 @@ def _build(dtype):
             v[i] = vec()
 
     @wp.kernel(**opts)
-    def drift_kernel(x: wp.array(dtype=vec), v: wp.array(dtype=vec), inv_mass: wp.array(dtype=scalar), dt: scalar):
-        i = wp.tid()
-        if inv_mass[i] > scalar(0.0):
-            x[i] = x[i] + dt * v[i]
-
-    @wp.kernel(**opts)
     def gather_kernel(offsets: wp.array(dtype=wp.int32), entries: wp.array(dtype=wp.int32),
                       ft: wp.array2d(dtype=vec), out: wp.array(dtype=vec)):
         i = wp.tid()
-        f = vec()
-        for kk in range(offsets[i], offsets[i + 1]):
-            ent = entries[kk]
-            f = f + ft[ent // 3, ent % 3]
-        out[i] = f
+        out[i] = corner_sum(offsets, entries, ft, i)
 
+    # the drift is the cloth peer's (x += dt v on free vertices)
     _kernels[key] = dict(wp=wp, scalar=scalar, vec=vec, triangle=triangle_kernel, kick=kick_kernel,
-                         drift=drift_kernel, gather=gather_kernel)
+                         drift=_build_cloth(dtype)["drift"], gather=gather_kernel)
     return _kernels[key]
 
 
