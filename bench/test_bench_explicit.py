@@ -34,19 +34,33 @@ def _info(c, bending):
                 h=c.bending.n_hinges if (bending and c.bending is not None) else 0)
 
 
-def _contenders(c, bending, block):
-    """The engine, Numba, Warp (and, one step per call, numpy) stepping their own copies of the
-    bench's start state ``block`` steps per call in the engine's precision; (contenders, left out,
-    the engine's state)."""
-    x0, v0 = config.cloth_start_state(c)
-    dtype = np.dtype(float_dtype())
+def _engine_contender(c, x0, v0, block):
+    """(the engine's Contender stepping its own state from (x0, v0) ``block`` symplectic-Euler steps
+    per call, that state)."""
     st = c.model.make_state(x0, v0)
     stepper = Stepper(c.model, "symplectic-euler")
 
     def engine():
         stepper.step(st, DT, block)
         sync()
-    out = [Contender("engine", engine)]
+    return Contender("engine", engine), st
+
+
+def _warp_contender(p, x0, v0, dtype, block):
+    """A Warp peer's Contender, loaded with (x0, v0) in ``dtype``, ``block`` steps per call."""
+    p.load(x0.astype(dtype), v0.astype(dtype))
+    return Contender("warp", lambda: p.advance(DT, block),     # CPU launches return when done
+                     info=dict(peer_threads=1, peer_layer="warp cpu (serial)"))
+
+
+def _contenders(c, bending, block):
+    """The engine, Numba, Warp (and, one step per call, numpy) stepping their own copies of the
+    bench's start state ``block`` steps per call in the engine's precision; (contenders, left out,
+    the engine's state)."""
+    x0, v0 = config.cloth_start_state(c)
+    dtype = np.dtype(float_dtype())
+    engine, st = _engine_contender(c, x0, v0, block)
+    out = [engine]
     left = {}
     for name in ("numba", "warp"):
         why = peers.missing(name)
@@ -58,11 +72,9 @@ def _contenders(c, bending, block):
             x, v = x0.astype(dtype), v0.astype(dtype)
             run = (lambda p=p, x=x, v=v: p.step(x, v, DT, block))
             info = dict(peer_threads=p.threads, peer_layer=p.layer)
+            out.append(Contender(name, run, info=info))
         else:
-            p.load(x0.astype(dtype), v0.astype(dtype))
-            run = (lambda p=p: p.advance(DT, block))     # CPU launches return when done
-            info = dict(peer_threads=1, peer_layer="warp cpu (serial)")
-        out.append(Contender(name, run, info=info))
+            out.append(_warp_contender(p, x0, v0, dtype, block))
     if block == 1:
         base = NumpyCloth(c.model, c.springs, c.bending if bending else None)
         x, v = x0.copy(), v0.copy()
@@ -137,19 +149,14 @@ MEMBRANE = config.MEMBRANE_MODEL
 @pytest.mark.parametrize("side", SIZES)
 def test_membrane_row(benchmark, side, block):
     """The same cloth with a Baraff-Witkin membrane (engine/energies/membrane.py) instead of springs:
-    ``block`` symplectic-Euler steps per call, the engine (its generic path: per-triangle forces,
-    per-vertex gather, the update) against the same energy written in Warp
-    (bench/peers/warp_membrane.py), interleaved in rounds. Numba and numpy have no membrane."""
+    ``block`` symplectic-Euler steps per call, the engine (its two-pass step: the triangle kernel,
+    then gather + update) against the same energy written in Warp (bench/peers/warp_membrane.py),
+    interleaved in rounds. Numba and numpy have no membrane."""
     c = config.membrane_scene(side)
     x0, v0 = config.cloth_start_state(c)
     dtype = np.dtype(float_dtype())
-    st = c.model.make_state(x0, v0)
-    stepper = Stepper(c.model, "symplectic-euler")
-
-    def engine():
-        stepper.step(st, DT, block)
-        sync()
-    contenders = [Contender("engine", engine)]
+    engine, st = _engine_contender(c, x0, v0, block)
+    contenders = [engine]
     left = {"numba": "the Numba peer writes springs and hinges only", "numpy": "the numpy baseline writes springs "
             "and hinges only"}
     why = peers.missing("warp")
@@ -157,10 +164,7 @@ def test_membrane_row(benchmark, side, block):
         left["warp"] = why
     else:
         from bench.peers.warp_membrane import WarpMembrane
-        p = WarpMembrane(c.model, c.membrane, dtype)
-        p.load(x0.astype(dtype), v0.astype(dtype))
-        contenders.append(Contender("warp", lambda: p.advance(DT, block),
-                                    info=dict(peer_threads=1, peer_layer="warp cpu (serial)")))
+        contenders.append(_warp_contender(WarpMembrane(c.model, c.membrane, dtype), x0, v0, dtype, block))
     n, m = c.model.n, c.membrane.n_elements
     row = measure_row(benchmark, contenders, group="cloth-explicit-step" if block == 1 else "cloth-explicit-block",
                       budget="explicit", steps=block, left_out=left, model=MEMBRANE, kernel="explicit_step",
