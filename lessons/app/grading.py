@@ -183,32 +183,47 @@ class Grader:
                                      f"{name} is written", f"{name}: not written yet (its body is empty)"))
             else:
                 todo.append(name)
+        def outcome(name, result, why):
+            if result is not None and "rows" in result:
+                rows.extend(result["rows"])
+                self.usable.append(name)
+            else:
+                rows.append(_failure(self.lesson.id, UNIT_STAGE, f"ex-{name.replace('_', '-')}-runs", f"{name} runs",
+                                     why or result["error"]))
+
+        def stopped(name, finished, child):
+            returns = next(t.returns for t in self.tasks if t.name == name)
+            return (f"{name}: stopped after {self.limit:g} s (an endless loop?)" if not finished
+                    else f"{name}: {child.crash_text(returns)}")
+        self._in_children(todo, lambda left: ["units", *left], "task", lambda name: name, outcome, stopped)
+        self.rows += rows
+        self._print_table("your functions, each on its own", rows)
+
+    def _in_children(self, todo: list, args_of, key: str, start_of, outcome, stopped) -> None:
+        """Run the items ``todo`` (functions or stages) in a child process, ``args_of(items)`` its
+        arguments, and again for the items after one that was stopped at the time limit or crashed.
+        The child writes one line per finished item under ``key`` and a "start" line
+        (``start_of(item)``) before each. ``outcome(item, its line, None)`` takes a finished item,
+        ``outcome(item, None, why)`` one that could not run: the child broke before it (its error for
+        every item), or it was the one running when the child stopped (``stopped(item, finished, child)``
+        says why)."""
         while todo:
-            child = _Child(self.lesson.id, self.path, ["units", *todo], self.limit, self.workdir)
+            child = _Child(self.lesson.id, self.path, args_of(todo), self.limit, self.workdir)
             finished = child.wait()
             child.close()
-            results = {line["task"]: line for line in child.lines if "task" in line}
-            broken = next((line["error"] for line in child.lines if "error" in line and "task" not in line), "")
+            results = {line[key]: line for line in child.lines if key in line}
+            broken = next((line["error"] for line in child.lines if "error" in line and key not in line), "")
             left = []
-            for position, name in enumerate(todo):
-                id = f"ex-{name.replace('_', '-')}-runs"
+            for position, item in enumerate(todo):
                 if broken:
-                    rows.append(_failure(self.lesson.id, UNIT_STAGE, id, f"{name} runs", broken))
-                elif name in results and "rows" in results[name]:
-                    rows += results[name]["rows"]
-                    self.usable.append(name)
-                elif name in results:
-                    rows.append(_failure(self.lesson.id, UNIT_STAGE, id, f"{name} runs", results[name]["error"]))
-                elif any(line.get("start") == name for line in child.lines) or position == 0:
-                    returns = next(t.returns for t in self.tasks if t.name == name)
-                    why = (f"{name}: stopped after {self.limit:g} s (an endless loop?)" if not finished
-                           else f"{name}: {child.crash_text(returns)}")
-                    rows.append(_failure(self.lesson.id, UNIT_STAGE, id, f"{name} runs", why))
+                    outcome(item, None, broken)
+                elif item in results:
+                    outcome(item, results[item], None)
+                elif any(line.get("start") == start_of(item) for line in child.lines) or position == 0:
+                    outcome(item, None, stopped(item, finished, child))
                     left = todo[position + 1:]
                     break
             todo = left
-        self.rows += rows
-        self._print_table("your functions, each on its own", rows)
 
     def _needed(self, index: int) -> list:
         return [t.name for t in self.tasks if not t.stages or index in t.stages]
@@ -229,28 +244,17 @@ class Grader:
             else:
                 runnable.append(index)
         installed = [t.name for t in self.tasks if any(t.name in self._needed(i) for i in runnable)]
-        todo = runnable
-        while todo:
-            child = _Child(self.lesson.id, self.path, ["stages", ",".join(map(str, todo)), *installed], self.limit,
-                           self.workdir)
-            finished = child.wait()
-            child.close()
-            results = {line["stage"]: line for line in child.lines if "stage" in line}
-            broken = next((line["error"] for line in child.lines if "error" in line and "stage" not in line), "")
-            left = []
-            for position, index in enumerate(todo):
-                fail = lambda why: [_failure(self.lesson.id, index, f"stage{index}-ran",  # noqa: E731
-                                             f"stage {index} ran with your functions", why)]
-                if broken:
-                    found[index] = fail(broken)
-                elif index in results:
-                    found[index] = results[index].get("rows") or fail(results[index]["error"])
-                elif any(line.get("start") == f"stage {index}" for line in child.lines) or position == 0:
-                    found[index] = fail(f"stopped after {self.limit:g} s (an endless loop in one of "
-                                        f"{', '.join(self._needed(index))}?)" if not finished else child.crash_text())
-                    left = todo[position + 1:]
-                    break
-            todo = left
+
+        def outcome(index, result, why):
+            found[index] = (result or {}).get("rows") or [_failure(
+                self.lesson.id, index, f"stage{index}-ran", f"stage {index} ran with your functions",
+                why or result["error"])]
+
+        def stopped(index, finished, child):
+            return (f"stopped after {self.limit:g} s (an endless loop in one of {', '.join(self._needed(index))}?)"
+                    if not finished else child.crash_text())
+        self._in_children(runnable, lambda left: ["stages", ",".join(map(str, left)), *installed], "stage",
+                          lambda index: f"stage {index}", outcome, stopped)
         for index in indices:
             title = self.lesson.stages[index - 1].title
             rows = found[index]
