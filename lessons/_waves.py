@@ -35,6 +35,15 @@ def square_domain_cells(half: float, spacing: float) -> int:
     return 2 * int(math.ceil(half / spacing))
 
 
+def wave_grid(n: int, pattern: str, r: float) -> tuple:
+    """The square sheet a standing wave runs on: a right-triangle grid of ``pattern`` with n x n
+    vertices 1 m apart, and the disc of radius ``r`` about its centre the amplitude is read in:
+    (2D mesh, its 3D embedding, the centre, the vertices in the disc)."""
+    m2 = M.right_triangle_grid(n, n, n - 1.0, n - 1.0, pattern)
+    ctr = np.full(2, 0.5 * (n - 1))
+    return m2, M.embed_3d(m2), ctr, np.linalg.norm(m2.vertices - ctr, axis=1) <= r
+
+
 def wave_steps(ctx, model: Model, k: float, c_guess: float) -> tuple[bool, float, int]:
     """(implicit, dt, n_steps) of a standing-wave run (see :func:`standing_wave`)."""
     implicit = ctx.integrator_name("velocity-verlet") == "backward-euler"

@@ -20,7 +20,8 @@ from engine.theory.schemes import backward_euler_damping_rate as be_damping_rate
 
 from .._framework import Experiment
 from .._measure import stretch_strip
-from .._waves import RUN_PERIODS, sheet_drawer, solid_drawer, square_domain_cells, standing_wave, unit, wave_time
+from .._waves import RUN_PERIODS, sheet_drawer, solid_drawer, square_domain_cells, standing_wave, unit, wave_grid, \
+    wave_time
 from .scene import STRIPS, announce, area_model, bulk_tensor, draw_strip, eq_sheet
 
 BOX_LENGTH = 1.0    # m, the tet box of stage 1 and the cell size unit of stage 4
@@ -200,12 +201,9 @@ def _pattern_speeds(ctx, pattern: str, n: int, k: float, r: float, measured: dic
     slowest wave), so the one-way grid's fast and slow diagonal play side by side."""
     cfg = ctx.cfg
     c0 = math.sqrt(cfg.E / cfg.rho)
-    m2 = M.right_triangle_grid(n, n, n - 1.0, n - 1.0, pattern)
-    m3 = M.embed_3d(m2)
+    m2, m3, ctr, region = wave_grid(n, pattern, r)
     model, c, mass = area_model(m3, cfg.E, cfg.rho)
     C = cauchy_born_tensor(m2.vertices, m2.edges, c, m2.total_measure)
-    ctr = np.full(2, 0.5 * (n - 1))
-    region = np.linalg.norm(m2.vertices - ctr, axis=1) <= r
     if ctx.rec.enabled and shown.get("span") is None:
         shown["span"] = max(wave_time(ctx, model, k, christoffel(C, d, cfg.rho)[0][-1]) for d, _ in DIRECTIONS.values())
     exps = []

@@ -14,7 +14,7 @@ from lessons.app.blueprint import RunView
 
 from .._framework import Experiment
 from .._scene import simulate
-from .._waves import RUN_PERIODS, sheet_drawer, square_domain_cells, standing_wave, unit
+from .._waves import RUN_PERIODS, sheet_drawer, square_domain_cells, standing_wave, unit, wave_grid
 from .scene import (STRIPS, announce, cloth_logger, draw_patch, hanging_cloth, membrane_model, plane_speeds, pull,
                     springs_for, strip, triangle_stretch, uniaxial_theory, vertex_mean)
 
@@ -170,10 +170,7 @@ def stage_waves(ctx):
     cP, cS = plane_speeds(cfg.Y, cfg.nu, cfg.rho)
     half = r + RUN_PERIODS * lam * (cP / cS) * 1.05 + 2.0   # the fastest wave must not reach the disc from the edge
     n = square_domain_cells(half, 1.0) + 1
-    m2 = M.right_triangle_grid(n, n, n - 1.0, n - 1.0, "one-way")
-    m3 = M.embed_3d(m2)
-    ctr = np.full(2, 0.5 * (n - 1))
-    region = np.linalg.norm(m2.vertices - ctr, axis=1) <= r
+    m2, m3, ctr, region = wave_grid(n, "one-way", r)
     model, _ = membrane_model(m3, cfg.rho, "stvk", Y=cfg.Y, nu=cfg.nu)
     mass = model.mass
     exps, measured, fits = [], {}, []
@@ -317,10 +314,7 @@ def stage_damping(ctx):
     # lets the free edges disturb the disc's amplitude by ~1e-3 within the period (2% of the fitted decay)
     half = r + 2.0 * lam + 2.0
     n = square_domain_cells(half, 1.0) + 1
-    m2 = M.right_triangle_grid(n, n, n - 1.0, n - 1.0, "alternating")
-    m3 = M.embed_3d(m2)
-    ctr = np.full(2, 0.5 * (n - 1))
-    region = np.linalg.norm(m2.vertices - ctr, axis=1) <= r
+    _, m3, ctr, region = wave_grid(n, "alternating", r)
     model, _ = membrane_model(m3, rho, "baraff-witkin", k_stretch=ks, k_shear=0.5 * ks, damping_stretch=kd,
                               damping_shear=0.5 * kd)
     ctx.progress(f"k_d = {kd:.4g} N s/m for a damping ratio {cfg.damping_ratio:g} at the wavelength {lam:g} m: "
