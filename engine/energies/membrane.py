@@ -537,8 +537,12 @@ class MembraneEnergy(Energy):
         return H
 
     def gershgorin_row_sums(self, x) -> np.ndarray:
+        return self._abs_row_sums(self.hessian_blocks_numpy(x, psd=False))
+
+    def _abs_row_sums(self, blocks: np.ndarray) -> np.ndarray:
+        """(n, 3): sum_j |M_(v,a),j| of the matrix whose per-triangle blocks (m, 9, 3, 3) are given."""
         rows = np.zeros((self.n_vertices, 3))
-        absrow = np.abs(self.hessian_blocks_numpy(x, psd=False)).sum(axis=3)   # (m, 9, 3)
+        absrow = np.abs(blocks).sum(axis=3)                                      # (m, 9, 3)
         per_corner = absrow.reshape(-1, 3, 3, 3).sum(axis=2)                     # (m, 3, 3)
         np.add.at(rows, self.triangles_np.reshape(-1), per_corner.reshape(-1, 3))
         return rows
@@ -572,7 +576,4 @@ class MembraneEnergy(Energy):
     def damping_row_sums(self, x) -> np.ndarray:
         """(n, 3): sum_j |D_(v,a),j| at x, the Gershgorin bound of D's rows: an explicit step must keep
         dt D/m below 2 as well as under the stiffness' limit."""
-        rows = np.zeros((self.n_vertices, 3))
-        absrow = np.abs(self.damping_blocks(x).to_numpy().astype(np.float64)).sum(axis=3)
-        np.add.at(rows, self.triangles_np.reshape(-1), absrow.reshape(-1, 3, 3, 3).sum(axis=2).reshape(-1, 3))
-        return rows
+        return self._abs_row_sums(self.damping_blocks(x).to_numpy().astype(np.float64))
