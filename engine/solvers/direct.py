@@ -11,7 +11,7 @@ from engine.fields import float_dtype, vec3_ndarray, zero_vec3
 from engine.model import Model
 from engine.solvers.assembly import (CSRPattern, assemble_energy, assemble_mass, assemble_rows, init_rows,
                                      triplet_capacity)
-from engine.solvers.operator import LinearSolver, LinearSolveInfo, _apply_plan, _hessian_plan, _scaled, extra_terms
+from engine.solvers.operator import LinearSolver, LinearSolveInfo, _apply_plan, _hessian_plan, _scaled, element_terms
 
 
 def upper_product(U, y: np.ndarray, diag: np.ndarray | None = None) -> np.ndarray:
@@ -139,11 +139,8 @@ class CholeskySolver(DirectSolver):
                     N, N, max_num_triplets=2 * entry["capacity"] - 3 * model.n, dtype=ti.f64)
             B = entry["builder2"]
         assemble_mass(B, model.mass_nd, model.inv_mass_nd, a_s)
-        for scale, e, blocks in extra_terms(model, x, psd, extra):
+        for scale, e, blocks in element_terms(model, x, psd, extra):
             assemble_energy(B, e, blocks, model.inv_mass_nd, scale)
-        for e in model.energies:
-            if e.n_elements:
-                assemble_energy(B, e, e.hessian_blocks(x, psd), model.inv_mass_nd, 1.0)
         return B.build()  # empties the builder; lower triangle of the symmetric A' only
 
     def _factorize(self, model, entry, x, a_s, psd, extra) -> bool:
@@ -271,11 +268,8 @@ class PardisoSolver(DirectSolver):
         pattern, A = entry["pattern"], entry["matrix"]
         values = A.data  # the kernels write the CSR values in place (a numpy array: no copy on the CPU)
         init_rows(values, pattern.indptr_nd, model.mass_nd, model.inv_mass_nd, a_s)
-        for scale, e, blocks in extra_terms(model, x, psd, extra):
+        for scale, e, blocks in element_terms(model, x, psd, extra):
             assemble_rows(pattern, values, e, blocks, scale)
-        for e in model.energies:
-            if e.n_elements:
-                assemble_rows(pattern, values, e, e.hessian_blocks(x, psd), 1.0)
         ti.sync()
         return values
 

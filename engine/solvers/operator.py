@@ -115,17 +115,24 @@ def extra_kind(extra) -> str:
     return extra[2] if len(extra) > 2 else "hessian"
 
 
-def extra_terms(model: Model, x, psd: bool, extra) -> list:
+def element_terms(model: Model, x, psd: bool, extra):
     """(scale, energy, blocks) of every element term of A' for the direct solvers' assembly: the
-    extra term's first (s H_psd(x2) or s D(x2)), then H(x)."""
-    terms = []
+    extra term's first (s H_psd(x2) or s D(x2)), then H(x). Yielded one at a time: an energy
+    reuses its blocks buffer at its next hessian_blocks call, so each term must be assembled
+    before the next is asked for."""
     if extra is not None:
         s, x2 = extra[0], extra[1]
         if extra_kind(extra) == "damping":
-            terms += [(s, e, e.damping_blocks(x2)) for e in model.dampers if e.n_elements]
+            for e in model.dampers:
+                if e.n_elements:
+                    yield s, e, e.damping_blocks(x2)
         else:
-            terms += [(s, e, e.hessian_blocks(x2, True)) for e in model.energies if e.n_elements]
-    return terms
+            for e in model.energies:
+                if e.n_elements:
+                    yield s, e, e.hessian_blocks(x2, True)
+    for e in model.energies:
+        if e.n_elements:
+            yield 1.0, e, e.hessian_blocks(x, psd)
 
 
 def _apply_plan(model: Model, plan, a: float, p, q) -> None:
