@@ -6,6 +6,7 @@ import math
 import taichi as ti
 
 from engine.constants import SERIAL_BELOW
+from engine.energies.base import slot_gather
 from engine.fields import (free_dot, int_array, int_array2, mat3_array, mat3_array2, scalar_array, vec3_array,
                            vec3_array2, vec3_ndarray, zero_pinned, zero_vec3)
 from engine.model import Model
@@ -104,17 +105,6 @@ def _add_rank_one(qi, i, b_off: ti.template(), b_ent: ti.template(), w: ti.templ
 
 
 @ti.func
-def _add_element_vectors(qi, i, c_off: ti.template(), c_ent: ti.template(), yt: ti.template(), k: ti.template()):
-    # qi + (the sum over the incidence (entry = k e + slot) of yt[e, slot], summed in that order from 0):
-    # the generic path's q += gather(per-element products), in its order
-    acc = ti.math.vec3(0.0)
-    for j in range(c_off[i], c_off[i + 1]):
-        ent = c_ent[j]
-        acc += yt[ent // k, ent % k]
-    return qi + acc
-
-
-@ti.func
 def _element_product(blocks: ti.template(), elements: ti.template(), z: ti.template(), p: ti.template(), beta,
                      yt: ti.template(), e, k: ti.template()):
     # yt[e, a] = sum_b H_e,ab (z + beta p)[element vertex b]: one element's blocks (layout (m, k*k))
@@ -181,7 +171,7 @@ def _fused_direction_product(beta: float, z: vec3_array, p: vec3_array, p_new: v
             j = s_other[m]
             qi += s_blocks[s_edge[m]] @ (pi - (z[j] + beta * p[j]))
         qi = _add_rank_one(qi, i, b_off, b_ent, w, s, k)
-        qi = _add_element_vectors(qi, i, c_off, c_ent, yt, kc)
+        qi = qi + slot_gather(yt, c_off, c_ent, i, kc)   # the generic path's q += gather(products)
         p_new[i] = pi
         q[i] = qi
         if inv_mass[i] > 0.0:
@@ -226,7 +216,7 @@ def _pcg_whole_serial(beta0: float, rz0: float, target2: float, max_iter: ti.i32
             for m in range(s_off[i], s_off[i + 1]):
                 qi += s_blocks[s_edge[m]] @ (pi - p[s_other[m]])
             qi = _add_rank_one(qi, i, b_off, b_ent, w, s, k)
-            qi = _add_element_vectors(qi, i, c_off, c_ent, yt, kc)
+            qi = qi + slot_gather(yt, c_off, c_ent, i, kc)   # the generic path's q += gather(products)
             q[i] = qi
             if inv_mass[i] > 0.0:
                 pq += pi.dot(qi)
