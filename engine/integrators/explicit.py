@@ -259,6 +259,8 @@ def corner_stepper(model: Model, work: dict | None = None):
                 forces(x)
                 accel_kick(x, v, 0.0)
     return step
+
+
 MULTI_STEP_CHUNK = 1 << 20  # steps per cloth_steps launch at most (its barrier counter stays far below 2^31)
 
 

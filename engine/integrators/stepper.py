@@ -91,13 +91,11 @@ class Stepper:
                                            (self._requested is None and self.model.n < MANY_STEPS_BELOW))
         self.path = "generic"
         if getattr(self.integrator, "fused", False) and self.name in CLOTH_METHODS and not self.dampers:
-            self.fast = cloth_stepper(self.model, work=self._fast_work)
-            self.path = "one-launch"
-            if self.fast is None:
-                self.fast = corner_stepper(self.model, work=self._fast_work)
-                self.path = "two-pass"
-            if self.fast is None:
-                self.path = "generic"
+            for path, plan in (("one-launch", cloth_stepper), ("two-pass", corner_stepper)):
+                self.fast = plan(self.model, work=self._fast_work)
+                if self.fast is not None:
+                    self.path = path
+                    break
 
     def _check_plan(self) -> None:
         if self.scene_run is None and self._energies_key() != self._key:
