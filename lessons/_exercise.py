@@ -74,11 +74,69 @@ def empty_functions(path: Path, names) -> list[str]:
 
 
 def load_student_module(path: Path):
-    """Import the student's module from ``path`` (a fresh module object, not cached by name)."""
+    """Import the student's module from ``path`` (a fresh module object, not cached by name). The
+    grader loads it in its child under the guard instead (lessons.app.sandbox); tests load the
+    lessons' own reference solutions with this."""
     spec = importlib.util.spec_from_file_location(f"student_{Path(path).stem}", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+# ------------------------------------------------------------------ calling the student's function
+
+def direct(func):
+    """The factory of a set-up (numpy) function: it is called as it is."""
+    return func
+
+
+def normalise_result(name: str, result, kernel: bool):
+    """What a call of the student's function gave, as the checks read it: an array of floats, or a
+    tuple of them (a kernel's outputs). A set-up function's result that is not numbers is one
+    StudentError line naming the function."""
+    if isinstance(result, tuple) and result and all(isinstance(r, np.ndarray) for r in result) and kernel:
+        return tuple(np.asarray(r, dtype=float) for r in result)
+    try:
+        out = np.asarray(result, dtype=float)
+    except (TypeError, ValueError):
+        raise StudentError(f"{name}: returns {type(result).__name__}, expected numbers") from None
+    return out
+
+
+def call_student(name: str, fn, *args, kernel: bool = True):
+    """``fn(*args)`` (a kernel built around the student's function ``name``, or the function
+    itself); any error but a StudentError becomes one StudentError line naming the function."""
+    try:
+        return fn(*args)
+    except StudentError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - a Taichi compile or run error, or the student's own
+        text = " ".join(str(exc).split())
+        if kernel:
+            raise StudentError(f"{name}: could not be compiled or run in a kernel: {text[:200]}") from None
+        raise StudentError(f"{name}: raised {type(exc).__name__}: {text[:200]}") from None
+
+
+class LocalFunction:
+    """The student's function in this process (the tests of the checks). The grader hands the
+    checks a remote one instead (lessons.app.grading): the same ``via``, with the student's code
+    in a guarded child process and the verdicts here.
+
+    ``via(factory, *args)`` is the function around which ``factory(func, *args)`` builds a
+    callable on numpy inputs (a kernel calling it for a batch; :func:`direct` for set-up code);
+    calling it returns :func:`normalise_result`'s arrays."""
+
+    def __init__(self, name: str, func):
+        self.name, self.func = name, func
+        self._built: dict = {}
+
+    def via(self, factory, *args):
+        key = (factory, args)
+        if key not in self._built:
+            self._built[key] = factory(self.func, *args)
+        fn, kernel = self._built[key], factory is not direct
+        return lambda *inputs: normalise_result(self.name, call_student(self.name, fn, *inputs, kernel=kernel),
+                                                kernel)
 
 
 # ------------------------------------------------------------------ taking the engine's place
@@ -122,45 +180,57 @@ def substitute(original, replacement) -> int:
 
 # ------------------------------------------------------------------ checks
 
-def call_student(name: str, fn, *args):
-    """``fn(*args)`` (a kernel built around the student's function ``name``, or the function
-    itself); any error but a StudentError becomes one StudentError line naming the function."""
-    try:
-        return fn(*args)
-    except StudentError:
-        raise
-    except Exception as exc:  # noqa: BLE001 - a Taichi compile or run error, or the student's own
-        text = " ".join(str(exc).split())
-        raise StudentError(f"{name}: could not be compiled or run in a kernel: {text[:200]}") from None
+def _row_scale(reference: np.ndarray, scale) -> np.ndarray:
+    """The scale each call's deviation is measured against: ``scale`` per call when given (the
+    natural size of the result at that call's inputs, e.g. c/L for a spring's force), else the
+    largest reference value of all calls."""
+    n = len(reference)
+    if scale is None:
+        largest = float(np.max(np.abs(reference))) if reference.size else 0.0
+        return np.full(n, largest or 1.0)
+    return np.broadcast_to(np.asarray(scale, float), (n,)).copy()
 
 
-def deviation(measured: np.ndarray, reference: np.ndarray) -> float:
-    """max |measured - reference| / max |reference| (inf where the measured has NaN or inf)."""
+def _row_errors(measured, reference, scale) -> np.ndarray:
     measured, reference = np.asarray(measured, float), np.asarray(reference, float)
     if measured.shape != reference.shape:
         raise StudentError(f"returns shape {measured.shape[1:]} per call, expected {reference.shape[1:]}")
-    if not np.all(np.isfinite(measured)):
-        return math.inf
-    scale = float(np.max(np.abs(reference))) or 1.0
-    return float(np.max(np.abs(measured - reference))) / scale
+    err = np.abs(measured - reference).reshape(len(measured), -1).max(axis=1, initial=0.0)
+    err = np.where(np.isfinite(measured).reshape(len(measured), -1).all(axis=1), err, math.inf)
+    return err / _row_scale(reference, scale)
 
 
-def first_bad(measured: np.ndarray, reference: np.ndarray, tol: float) -> int:
-    """The index of the first call whose result deviates by more than ``tol`` (relative to the
-    largest reference), or -1."""
-    measured, reference = np.asarray(measured, float), np.asarray(reference, float)
-    scale = float(np.max(np.abs(reference))) or 1.0
-    err = np.abs(measured - reference).reshape(len(measured), -1).max(axis=1) / scale
-    bad = np.flatnonzero(~(err <= tol))
+def deviation(measured: np.ndarray, reference: np.ndarray, scale=None) -> float:
+    """The largest deviation of a call's result from its reference, relative to the largest
+    reference value (or to ``scale``, one value per call: checks whose inputs span several scales
+    measure each call against its own); inf where the measured has NaN or inf."""
+    err = _row_errors(measured, reference, scale)
+    return float(err.max()) if len(err) else 0.0
+
+
+def first_bad(measured: np.ndarray, reference: np.ndarray, tol: float, scale=None) -> int:
+    """The index of the first call whose result deviates by more than ``tol`` (as :func:`deviation`
+    measures), or -1."""
+    bad = np.flatnonzero(~(_row_errors(measured, reference, scale) <= tol))
     return int(bad[0]) if len(bad) else -1
+
+
+def matches(measured, wrong, scale=None, tol: float = 1e-8) -> bool:
+    """Whether the student's results are those of a known mistake ``wrong`` (within ``tol``)."""
+    try:
+        return bool(np.all(np.isfinite(measured))) and deviation(measured, wrong, scale) <= tol
+    except StudentError:
+        return False
 
 
 def ratio(measured: np.ndarray, reference: np.ndarray, rtol: float = 1e-4) -> float | None:
     """The constant factor measured/reference where there is one (within ``rtol``, over the entries
     above 1e-3 of the largest: a finite-difference reference is noisy near zero), else None."""
     measured, reference = np.ravel(np.asarray(measured, float)), np.ravel(np.asarray(reference, float))
-    keep = np.abs(reference) > 1e-3 * (np.max(np.abs(reference)) or 1.0)
-    if not np.any(keep) or not np.all(np.isfinite(measured)):
+    if measured.shape != reference.shape or not np.all(np.isfinite(measured)):
+        return None
+    keep = np.abs(reference) > 1e-3 * (np.max(np.abs(reference)) if reference.size else 1.0)
+    if not np.any(keep):
         return None
     r = measured[keep] / reference[keep]
     return float(np.median(r)) if np.allclose(r, np.median(r), rtol=rtol, atol=0) else None
@@ -170,13 +240,18 @@ FACTOR_WORDS = {2.0: "twice", 0.5: "half", -1.0: "minus", -2.0: "minus twice", -
 
 
 def factor_text(r: float | None) -> str:
-    """'twice' / 'minus' / '3.0 times' for a constant factor, '' for none or 1."""
-    if r is None or abs(r - 1.0) < 1e-6:
+    """'twice' / 'minus' / '3 times' / '1.0001 times' for a constant factor (as many digits as it
+    takes to tell it from 1), '' for none or 1."""
+    if r is None or abs(r - 1.0) < 1e-9:
         return ""
     for value, word in FACTOR_WORDS.items():
-        if abs(r - value) < 1e-6:
+        if abs(r - value) < 1e-9:
             return word
-    return f"{r:.3g} times"
+    for digits in range(3, 13):
+        text = f"{r:.{digits}g}"
+        if float(text) != 1.0:
+            return f"{text} times"
+    return f"{r!r} times"
 
 
 def agreement(claim: str, id: str, dev: float, tol: float, reason: str, unit: str = "") -> Experiment:
@@ -198,6 +273,17 @@ class Sampler:
 
     def uniform(self, n: int, lo: float, hi: float) -> np.ndarray:
         return self.rng.uniform(lo, hi, n)
+
+    def log_uniform(self, n: int, lo: float, hi: float) -> np.ndarray:
+        """``n`` values spread evenly in log between ``lo`` and ``hi`` (several scales)."""
+        return np.exp(self.rng.uniform(np.log(lo), np.log(hi), n))
+
+    def rotations(self, n: int) -> np.ndarray:
+        """``n`` random proper rotations (3, 3)."""
+        q, r = np.linalg.qr(self.rng.standard_normal((n, 3, 3)))
+        q *= np.sign(np.einsum("nii->ni", r))[:, None, :]
+        q[np.linalg.det(q) < 0, :, 0] *= -1
+        return q
 
 
 def central_difference(fn: Callable[[np.ndarray], np.ndarray], x: np.ndarray, eps: float) -> np.ndarray:

@@ -1,18 +1,25 @@
 """``python -m lessons check LESSON --solution DIR``: grade a student's exercise.
 
 For each lesson checked: the student's module ``DIR/<lesson id with _>.py`` is read; each function
-with an empty body is one line "not written yet"; the written ones are checked on their own (the
-lesson's ``exercise.TASKS``: against the lesson's formula, forces and Hessians against finite
-differences); then the lesson's own stages run with the student's functions in the engine's
-place. The function checks run in one child process and the stages in another
-(lessons.app.grading_child), each function and each stage under a time limit (a child stopped or
-crashed is started again for the rest), so a student's error is one line naming the function and an
-endless loop is stopped. The claim table
-is the lessons' own, ``--results`` the same JSON as ``run --results``. Exit 0 when every claim
+with an empty body is one line "not written yet"; the module (and its own modules beside it) is
+read for what a solution may not do (lessons.app.sandbox: imports other than numpy, math, cmath,
+taichi and its own; builtins and attributes that reach files, processes or other code); then the
+written functions are checked on their own (the lesson's ``exercise.TASKS``: against the lesson's
+formula, forces and Hessians against finite differences) and the lesson's own stages run with the
+student's functions in the engine's place.
+
+Only the grading child (lessons.app.grading_child) runs the student's code, under the guard, a
+CPU-time and a memory limit, in its own process group, ended with the grader however the grader
+ends. The checks themselves run here: the child gets the inputs and returns the student's outputs,
+and every verdict is computed here, from values read and validated here (a malformed answer is a
+failed claim with its reason). Each function and each stage has ``--time-limit`` seconds; a module
+that hangs at import is charged once; a stopped or crashed child is started again for the rest.
+The claim table is the lessons' own, ``--results`` the same JSON as ``run --results``, prepared
+before the grading (refused up front when it cannot be written or would replace a file of the
+solution) and written, marked partial, when the check is interrupted. Exit 0 when every claim
 passes, 1 when one fails, 2 for bad input.
 """
 import ast
-import json
 import math
 import os
 import subprocess
@@ -21,13 +28,16 @@ import tempfile
 import time
 from pathlib import Path
 
-from .._exercise import empty_functions, module_file
-from .._framework import Experiment, text_table, write_json_atomic
+from .._exercise import StudentError, empty_functions, module_file
+from .._framework import COMPARISONS, Experiment, Terminated, text_table
+from . import channel
 from .arguments import UsageError, _Parser
 from .exercises import exercise_module, lessons_with_exercises
-from .results import package_version, results_document
+from .results import encode, package_version, results_document
+from .sandbox import policy_problems
 
 DEFAULT_TIME_LIMIT_S = 600.0
+DEFAULT_MEMORY_GB = 4.0
 UNIT_STAGE = 0   # the "stage" of the function-by-function checks in the results
 PROJECT_ROOT = Path(__file__).resolve().parents[2]
 
@@ -47,8 +57,11 @@ def _parser(ids: list[str]) -> _Parser:
                    help="check the functions on their own only, without the lesson's stages")
     p.add_argument("--results", metavar="FILE", help="write the claims as JSON (the format of 'run --results')")
     p.add_argument("--time-limit", type=float, default=DEFAULT_TIME_LIMIT_S, metavar="S",
-                   help=f"seconds one check may take before it is stopped (a function's checks, or one stage; "
-                        f"default {DEFAULT_TIME_LIMIT_S:g})")
+                   help=f"seconds one check may take before it is stopped (the module's import, a function's checks, "
+                        f"or one stage; default {DEFAULT_TIME_LIMIT_S:g})")
+    p.add_argument("--memory-limit", type=float, default=DEFAULT_MEMORY_GB, metavar="GB",
+                   help=f"address space the student's process may take, in GiB (0.5..256; default "
+                        f"{DEFAULT_MEMORY_GB:g})")
     return p
 
 
@@ -64,82 +77,228 @@ def _failure(lesson_id: str, stage: int, id: str, claim: str, reason: str) -> di
     return e.to_dict(lesson_id, stage, "your functions" if stage == UNIT_STAGE else "")
 
 
-class _Child:
-    """One child process of checks: started, read line by line, stopped at its time limit."""
+class Stopped(Exception):
+    """The child was stopped at the time limit."""
 
-    def __init__(self, lesson_id: str, solution: Path, args: list[str], limit: float, workdir: Path):
-        self.out_path = Path(tempfile.mkstemp(suffix=".jsonl", dir=workdir)[1])
-        self.log_path = self.out_path.with_suffix(".log")
-        self.log = open(self.log_path, "w", encoding="utf-8")
+
+class Crashed(Exception):
+    """The child ended without answering (its reason: a signal or its last words)."""
+
+
+class Refused(Exception):
+    """The child ended because the solution did what a solution may not (the guard's line)."""
+
+
+class _Server:
+    """One grading child for one student's module: started, asked, stopped (lessons.app.grading_child).
+
+    It runs in its own session and process group (killed as a group), ends itself when this process
+    ends (PR_SET_PDEATHSIG), and its CPU time is capped at ``limit`` times the work it may be given
+    (a backstop: the grader stops it at ``limit`` seconds of wall time per request)."""
+
+    def __init__(self, lesson_id: str, path: Path, limit: float, memory_bytes: int, workdir: Path, items: int):
+        self.lesson_id, self.path, self.limit = lesson_id, path, limit
+        self.memory, self.workdir, self.items = memory_bytes, workdir, items
+        self.proc = None
+        self.ready: dict = {}
+
+    def start(self) -> dict:
+        """Start the child and wait for its module to load (``limit`` s): returns its ready message, or
+        raises Stopped (a hang at import), Crashed or Refused; ``{"error": line}`` for a module that
+        does not import."""
+        to_child_r, to_child_w = os.pipe()
+        from_child_r, from_child_w = os.pipe()
+        log_fd, self.log_path = tempfile.mkstemp(suffix=".log", dir=self.workdir)
         env = dict(os.environ)
         env["PYTHONPATH"] = os.pathsep.join([str(PROJECT_ROOT)] + [p for p in [env.get("PYTHONPATH")] if p])
-        self.proc = subprocess.Popen([sys.executable, "-m", "lessons.app.grading_child", lesson_id, str(solution),
-                                      str(self.out_path), *args], stdout=self.log, stderr=subprocess.STDOUT,
-                                     env=env, start_new_session=True)
-        self.limit = limit
-        self.lines: list[dict] = []
-
-    def _read(self) -> None:
-        text = self.out_path.read_text(encoding="utf-8")
-        self.lines = [json.loads(s) for s in text.splitlines() if s.strip()]
-
-    def wait(self) -> bool:
-        """Wait for the child; the limit counts from its start and again from each function's start.
-        Returns False when it was stopped at the limit."""
-        deadline = time.monotonic() + self.limit
-        seen = 0
+        cpu = self.limit * (self.items + 2) * 2 + 120
         try:
-            while self.proc.poll() is None:
-                time.sleep(0.05)
-                self._read()
-                if len(self.lines) > seen:
-                    if any("start" in line for line in self.lines[seen:]):
-                        deadline = time.monotonic() + self.limit
-                    seen = len(self.lines)
-                if time.monotonic() > deadline:
-                    self.stop()
-                    self._read()
-                    return False
-        except BaseException:   # an interrupt (Ctrl-C, a signal) of the grader stops the check with it
+            self.proc = subprocess.Popen(
+                [sys.executable, "-m", "lessons.app.grading_child", self.lesson_id, str(self.path.resolve()), str(to_child_r),
+                 str(from_child_w), str(os.getpid()), f"{cpu:.0f}", str(self.memory)],
+                stdin=subprocess.DEVNULL, stdout=log_fd, stderr=subprocess.STDOUT, env=env, start_new_session=True,
+                pass_fds=(to_child_r, from_child_w), cwd=self.workdir)
+        finally:
+            os.close(to_child_r)
+            os.close(from_child_w)
+            os.close(log_fd)
+        self.to_child, self.reader = to_child_w, channel.Reader(from_child_r)
+        self.ready = self._answer(time.monotonic() + self.limit)
+        return self.ready
+
+    def _answer(self, deadline: float) -> dict:
+        try:
+            answer = self.reader.read(deadline)
+        except channel.ChannelTimeout:
+            self.stop()
+            raise Stopped() from None
+        except channel.ChannelClosed:
+            self.proc.wait()
+            raise Crashed(self.crash_text()) from None
+        except channel.ChannelError as exc:
+            self.stop()
+            raise Crashed(f"the student's process sent a malformed answer ({exc})") from None
+        except BaseException:   # an interrupt (Ctrl-C, a signal) of the grader stops the child with it
             self.stop()
             raise
-        self._read()
-        return True
+        if not isinstance(answer, dict):
+            self.stop()
+            raise Crashed("the student's process sent a malformed answer (not an object)")
+        if "violation" in answer:
+            self.stop()
+            raise Refused(str(answer["violation"])[:400])
+        return answer
+
+    def ask(self, request: dict, deadline: float) -> dict:
+        try:
+            channel.send(self.to_child, request)
+        except OSError:   # the child is gone: its reason comes with the answer's end of the channel
+            pass
+        return self._answer(deadline)
+
+    @property
+    def alive(self) -> bool:
+        return self.proc is not None and self.proc.poll() is None
 
     def stop(self) -> None:
         """Kill the child and everything it started (its own process group), and reap it."""
+        if self.proc is None:
+            return
         try:
             os.killpg(self.proc.pid, 9)
-        except ProcessLookupError:
+        except (ProcessLookupError, PermissionError):
             pass
         self.proc.wait()
+        for fd in (self.to_child, self.reader.fd):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+        self.proc = None
 
     def crash_text(self, returns: str = "") -> str:
-        """Why the child ended without its result: a signal (a crash of Taichi's compiler, most
-        often on a function that returns another type than it should) or its last words."""
-        if self.proc.returncode is not None and self.proc.returncode < 0:
+        """Why the child ended without its answer: a signal (a crash of Taichi's compiler, most
+        often on a function that returns another type than it should), a limit, or its last words."""
+        code = self.proc.returncode if self.proc is not None else None
+        if code is not None and code < 0:
+            if -code in (24,):   # SIGXCPU
+                return "the CPU-time limit of the student's process was reached"
             hint = f": check that it returns {returns}" if returns else ""
-            return f"the Taichi compiler crashed on it (signal {-self.proc.returncode}){hint}"
-        return self._last_words()
+            return f"the Taichi compiler crashed on it (signal {-code}){hint}"
+        lines = [s for s in Path(self.log_path).read_text(encoding="utf-8", errors="replace").splitlines()
+                 if s.strip() and not s.startswith("[Taichi]")]
+        if any("MemoryError" in s or "bad_alloc" in s for s in lines[-5:]):
+            return "the memory limit of the student's process was reached"
+        return f"the check's process ended with exit code {code}" + (f": {lines[-1][:200]}" if lines else "")
 
-    def _last_words(self) -> str:
-        lines = [s for s in self.log_path.read_text(encoding="utf-8", errors="replace").splitlines() if s.strip() and not s.startswith("[Taichi]")]
-        return f"the check's process ended with exit code {self.proc.returncode}" + (f": {lines[-1][:200]}" if lines else "")
 
-    def close(self) -> None:
-        self.log.close()
+class RemoteFunction:
+    """The student's function as the checks see it here (lessons._exercise.LocalFunction's ``via``):
+    each call is answered by the grading child within the task's deadline."""
+
+    def __init__(self, name: str, grader: "Grader"):
+        self.name, self.grader = name, grader
+
+    def via(self, factory, *args):
+        spec = f"{factory.__module__}:{factory.__qualname__}"
+
+        def call(*inputs):
+            answer = self.grader.call(self.name, spec, list(args), list(inputs))
+            if "error" in answer:
+                raise StudentError(str(answer["error"])[:4000])
+            out = answer.get("ok")
+            if answer.get("tuple") and isinstance(out, list) and all(hasattr(o, "shape") for o in out):
+                return tuple(o.astype(float) for o in out)
+            if hasattr(out, "shape") and out.dtype.kind in "fib":
+                return out.astype(float)
+            raise StudentError(f"{self.name}: the student's process sent no numbers")
+        return call
+
+
+ROW_TYPES = {"id": str, "claim": str, "tolerance": (int, float), "comparison": str}
+
+
+def validated_rows(rows, lesson_id: str, index: int, title: str) -> list[dict]:
+    """A stage's rows as the child sent them, checked field by field and rebuilt here (each verdict
+    recomputed from theory, measured, tolerance and comparison); raises ValueError naming the first
+    malformed field."""
+    if not isinstance(rows, list) or not rows:
+        raise ValueError("no rows")
+    out, seen = [], set()
+    for k, row in enumerate(rows):
+        if not isinstance(row, dict):
+            raise ValueError(f"row {k} is not an object")
+        for key, kind in ROW_TYPES.items():
+            if not isinstance(row.get(key), kind) or isinstance(row.get(key), bool):
+                raise ValueError(f"row {k}'s {key} is missing or of the wrong type")
+        for key in ("theory", "measured"):
+            if row.get(key) is not None and (not isinstance(row[key], (int, float)) or isinstance(row[key], bool)):
+                raise ValueError(f"row {k}'s {key} is not a number")
+        if row["comparison"] not in COMPARISONS or row["id"] in seen:
+            raise ValueError(f"row {k}'s comparison or id is not valid")
+        seen.add(row["id"])
+        num = lambda v: math.nan if v is None else float(v)  # noqa: E731
+        try:
+            e = Experiment(row["claim"][:2000], num(row["theory"]), num(row["measured"]), float(row["tolerance"]),
+                           row["comparison"], str(row.get("unit", ""))[:40], id=row["id"],
+                           reason=str(row.get("reason", ""))[:2000])
+        except ValueError as exc:
+            raise ValueError(f"row {k}: {exc}") from None
+        d = e.to_dict(lesson_id, index, title)
+        integrators = row.get("integrators")
+        if isinstance(integrators, (str, list)) and all(isinstance(x, str) for x in integrators):
+            d["integrators"] = integrators
+        out.append(d)
+    return out
 
 
 class Grader:
-    """Grades one lesson's module; collects rows and prints the tables."""
+    """Grades one lesson's module; collects rows and notes and prints the tables."""
 
-    def __init__(self, lesson, solution_dir: Path, limit: float, out, workdir: Path):
+    def __init__(self, lesson, solution_dir: Path, limit: float, out, workdir: Path, memory_bytes: int):
         self.lesson, self.limit, self.out, self.workdir = lesson, limit, out, workdir
+        self.memory = memory_bytes
         self.tasks = exercise_module(lesson).TASKS
         self.path = module_file(solution_dir, lesson.id)
         self.rows: list[dict] = []
+        self.notes: list[str] = []
         self.usable: list[str] = []
+        self.failed_checks: dict[str, str] = {}   # function -> the id of its failed check
+        self.refused = ""                          # the guard's line: nothing more is graded
+        self.server: _Server | None = None
+        self.deadline = math.inf
+        self.hang = False
 
+    # ---------------------------------------------------------------- the child
+    def _server(self, items: int) -> _Server:
+        if self.server is None or not self.server.alive:
+            self.server = _Server(self.lesson.id, self.path, self.limit, self.memory, self.workdir, items)
+            ready = self.server.start()
+            self._note(ready.get("notes"))
+            if "error" in ready:
+                raise StudentError(str(ready["error"])[:400])
+            if not ready.get("ready"):
+                raise Crashed("the student's process did not say it was ready")
+        return self.server
+
+    def _note(self, notes) -> None:
+        for n in notes or []:
+            text = str(n)[:300]
+            if text not in self.notes:
+                self.notes.append(text)
+
+    def call(self, name: str, factory: str, args: list, inputs: list) -> dict:
+        server = self._server(len(self.tasks))
+        answer = server.ask({"op": "call", "task": name, "factory": factory, "args": args, "inputs": inputs},
+                            self.deadline)
+        self._note(answer.pop("notes", None))
+        return answer
+
+    def close(self) -> None:
+        if self.server is not None:
+            self.server.stop()
+
+    # ---------------------------------------------------------------- printing
     def _print_table(self, title: str, rows: list[dict], hint: str = "") -> None:
         self.out.write(f"\n== {self.lesson.id} · {title}\n")
         exps = [_experiment(r) for r in rows]
@@ -161,108 +320,182 @@ class Grader:
             return f"{self.path}: cannot be read: {exc}"
         return ""
 
+    # ---------------------------------------------------------------- the function checks
     def functions(self) -> None:
-        """The function-by-function checks."""
         rows: list[dict] = []
+        lesson = self.lesson.id
+
+        def fail(id: str, claim: str, reason: str) -> None:
+            rows.append(_failure(lesson, UNIT_STAGE, id, claim, reason))
+
         problem = self._module_problem()
         if problem:
-            rows.append(_failure(self.lesson.id, UNIT_STAGE, "ex-module", "your module can be read", problem))
-            self.rows += rows
-            self._print_table("your functions", rows)
-            return
+            fail("ex-module", "your module can be read", problem)
+            return self._done(rows)
+        reading = policy_problems(self.path)
+        self._note(reading.notes)
+        if reading.problems:
+            more = f" (and {len(reading.problems) - 1} more)" if len(reading.problems) > 1 else ""
+            self.refused = reading.problems[0] + more
+            fail("ex-module-rules", "your module keeps to what a solution may do", self.refused)
+            return self._done(rows)
         names = [t.name for t in self.tasks]
-        defined = {n.name for n in ast.walk(ast.parse(self.path.read_text(encoding="utf-8"))) if isinstance(n, ast.FunctionDef)}
+        defined = {n.name for n in ast.walk(ast.parse(self.path.read_text(encoding="utf-8")))
+                   if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef))}
         empty = set(empty_functions(self.path, names))
         todo = []
         for name in names:
+            slug = name.replace("_", "-")
             if name not in defined:
-                rows.append(_failure(self.lesson.id, UNIT_STAGE, f"ex-{name.replace('_', '-')}-written",
-                                     f"{name} is written", f"{name}: not defined in {self.path.name}"))
+                fail(f"ex-{slug}-written", f"{name} is written", f"{name}: not defined in {self.path.name}")
             elif name in empty:
-                rows.append(_failure(self.lesson.id, UNIT_STAGE, f"ex-{name.replace('_', '-')}-written",
-                                     f"{name} is written", f"{name}: not written yet (its body is empty)"))
+                fail(f"ex-{slug}-written", f"{name} is written", f"{name}: not written yet (its body is empty)")
             else:
                 todo.append(name)
-        def outcome(name, result, why):
-            if result is not None and "rows" in result:
-                rows.extend(result["rows"])
-                self.usable.append(name)
-            else:
-                rows.append(_failure(self.lesson.id, UNIT_STAGE, f"ex-{name.replace('_', '-')}-runs", f"{name} runs",
-                                     why or result["error"]))
+        if todo:
+            self._check_tasks(todo, rows, fail)
+        self._done(rows)
 
-        def stopped(name, finished, child):
-            returns = next(t.returns for t in self.tasks if t.name == name)
-            return (f"{name}: stopped after {self.limit:g} s (an endless loop?)" if not finished
-                    else f"{name}: {child.crash_text(returns)}")
-        self._in_children(todo, lambda left: ["units", *left], "task", lambda name: name, outcome, stopped)
+    def _check_tasks(self, todo: list, rows: list, fail) -> None:
+        try:
+            self.deadline = time.monotonic() + self.limit
+            ready = self._server(len(todo)).ready
+        except Stopped:
+            self.hang = True
+            for name in todo:
+                fail(f"ex-{name.replace('_', '-')}-runs", f"{name} runs",
+                     f"your module did not finish importing within {self.limit:g} s (an endless loop at import?)")
+            return
+        except (StudentError, Crashed, Refused) as exc:
+            if isinstance(exc, Refused):
+                self.refused = str(exc)
+            for name in todo:
+                fail(f"ex-{name.replace('_', '-')}-runs", f"{name} runs", str(exc))
+            return
+        own = ready.get("own") if isinstance(ready.get("own"), dict) else {}
+        tasks = {t.name: t for t in self.tasks}
+        for name in todo:
+            slug = name.replace("_", "-")
+            if self.refused:
+                fail(f"ex-{slug}-runs", f"{name} runs", f"not checked: {self.refused}")
+                continue
+            if own.get(name):
+                fail(f"ex-{slug}-own", f"{name} is written in your module", str(own[name])[:300])
+                continue
+            self.deadline = time.monotonic() + self.limit
+            try:
+                found = [e.to_dict(self.lesson.id, UNIT_STAGE, "your functions")
+                         for e in tasks[name].check(RemoteFunction(name, self))]
+                rows.extend(found)
+                self.usable.append(name)
+                bad = next((r["id"] for r in found if not r["passed"]), "")
+                if bad:
+                    self.failed_checks[name] = bad
+            except StudentError as exc:
+                fail(f"ex-{slug}-runs", f"{name} runs", str(exc))
+            except Stopped:
+                fail(f"ex-{slug}-runs", f"{name} runs", f"{name}: stopped after {self.limit:g} s (an endless loop?)")
+            except Crashed as exc:
+                text = str(exc)
+                if "Taichi compiler crashed" in text and tasks[name].returns:
+                    text += f": check that it returns {tasks[name].returns}"
+                fail(f"ex-{slug}-runs", f"{name} runs", f"{name}: {text}")
+            except Refused as exc:
+                self.refused = str(exc)
+                fail(f"ex-{slug}-runs", f"{name} runs", self.refused)
+            finally:
+                self.deadline = math.inf
+
+    def _done(self, rows: list) -> None:
         self.rows += rows
         self._print_table("your functions, each on its own", rows)
+        for n in self.notes:
+            self.out.write(f"   note: {n}\n")
 
-    def _in_children(self, todo: list, args_of, key: str, start_of, outcome, stopped) -> None:
-        """Run the items ``todo`` (functions or stages) in a child process, ``args_of(items)`` its
-        arguments, and again for the items after one that was stopped at the time limit or crashed.
-        The child writes one line per finished item under ``key`` and a "start" line
-        (``start_of(item)``) before each. ``outcome(item, its line, None)`` takes a finished item,
-        ``outcome(item, None, why)`` one that could not run: the child broke before it (its error for
-        every item), or it was the one running when the child stopped (``stopped(item, finished, child)``
-        says why)."""
-        while todo:
-            child = _Child(self.lesson.id, self.path, args_of(todo), self.limit, self.workdir)
-            finished = child.wait()
-            child.close()
-            results = {line[key]: line for line in child.lines if key in line}
-            broken = next((line["error"] for line in child.lines if "error" in line and key not in line), "")
-            left = []
-            for position, item in enumerate(todo):
-                if broken:
-                    outcome(item, None, broken)
-                elif item in results:
-                    outcome(item, results[item], None)
-                elif any(line.get("start") == start_of(item) for line in child.lines) or position == 0:
-                    outcome(item, None, stopped(item, finished, child))
-                    left = todo[position + 1:]
-                    break
-            todo = left
-
+    # ---------------------------------------------------------------- the stages
     def _needed(self, index: int) -> list:
         return [t.name for t in self.tasks if not t.stages or index in t.stages]
 
     def stages(self, indices: list) -> None:
-        """The lesson's stages ``indices`` with the student's functions in the engine's place, in one
-        child process (started again after a stage that was stopped or crashed); a stage that needs
-        a function which cannot be used is not run."""
-        found: dict = {}
-        runnable = []
-        for index in indices:
-            missing = [n for n in self._needed(index) if n not in self.usable]
-            if missing:
-                found[index] = [_failure(self.lesson.id, index, f"stage{index}-ran",
-                                         f"stage {index} ran with your functions",
-                                         f"not run: it needs {', '.join(missing)}, which cannot be used yet "
-                                         f"(see above)")]
-            else:
-                runnable.append(index)
-        installed = [t.name for t in self.tasks if any(t.name in self._needed(i) for i in runnable)]
-
-        def outcome(index, result, why):
-            found[index] = (result or {}).get("rows") or [_failure(
-                self.lesson.id, index, f"stage{index}-ran", f"stage {index} ran with your functions",
-                why or result["error"])]
-
-        def stopped(index, finished, child):
-            return (f"stopped after {self.limit:g} s (an endless loop in one of {', '.join(self._needed(index))}?)"
-                    if not finished else child.crash_text())
-        self._in_children(runnable, lambda left: ["stages", ",".join(map(str, left)), *installed], "stage",
-                          lambda index: f"stage {index}", outcome, stopped)
+        """The lesson's stages ``indices`` with the student's functions in the engine's place, in the
+        grading child (started again after a stage that was stopped or crashed); a stage that needs a
+        function which cannot be used is not run."""
+        installed = [n for n in self.usable if any(n in self._needed(i) for i in indices)]
         for index in indices:
             title = self.lesson.stages[index - 1].title
-            rows = found[index]
+            missing = [n for n in self._needed(index) if n not in self.usable]
+            if self.refused or self.hang:
+                rows = [self._stage_failure(index, f"not run: {self.refused or 'your module did not import'}")]
+            elif missing:
+                rows = [self._stage_failure(index, f"not run: it needs {', '.join(missing)}, which cannot be used "
+                                                   f"yet (see above)")]
+            else:
+                rows = self._run_stage(index, title, installed)
             for r in rows:
                 r["stage_title"] = title
+            self._blame(index, rows)
             self.rows += rows
-            hint = "" if index not in runnable else f" (this stage ran on your {', '.join(self._needed(index))})"
+            ran = not (self.refused or self.hang or missing)
+            hint = f" (this stage ran on your {', '.join(self._needed(index))})" if ran else ""
             self._print_table(f"stage {index}: {title}", rows, hint=hint)
+
+    def _stage_failure(self, index: int, reason: str) -> dict:
+        return _failure(self.lesson.id, index, f"stage{index}-ran", f"stage {index} ran with your functions", reason)
+
+    def _run_stage(self, index: int, title: str, installed: list) -> list:
+        try:
+            fresh = self.server is None or not self.server.alive
+            self.deadline = time.monotonic() + self.limit
+            server = self._server(len(self.lesson.stages))
+            if fresh or not getattr(server, "installed", False):
+                server.ask({"op": "install", "names": installed}, self.deadline)
+                server.installed = True
+            answer = server.ask({"op": "stage", "index": index}, self.deadline)
+            self._note(answer.pop("notes", None))
+            if "error" in answer:
+                return [self._stage_failure(index, str(answer["error"])[:4000])]
+            return validated_rows(answer.get("rows"), self.lesson.id, index, title)
+        except ValueError as exc:
+            return [self._stage_failure(index, f"the stage's results came back malformed ({exc}): not graded")]
+        except Stopped:
+            return [self._stage_failure(index, f"stopped after {self.limit:g} s (an endless loop in one of "
+                                               f"{', '.join(self._needed(index))}?)")]
+        except (Crashed, StudentError) as exc:
+            return [self._stage_failure(index, str(exc))]
+        except Refused as exc:
+            self.refused = str(exc)
+            return [self._stage_failure(index, self.refused)]
+        finally:
+            self.deadline = math.inf
+
+    def _blame(self, index: int, rows: list) -> None:
+        """A failed claim of a stage that ran on a function which failed its own check says so."""
+        suspects = [f"{n} (which failed {self.failed_checks[n]} above)" for n in self._needed(index)
+                    if n in self.failed_checks]
+        if not suspects:
+            return
+        for r in rows:
+            if not r["passed"] and not r["id"].endswith("-ran"):
+                blame = f"likely from your {' and '.join(suspects)}"
+                r["reason"] = f"{r['reason']} ({blame})" if r.get("reason") else blame
+
+def _results_target(text: str, solution: Path):
+    """``--results PATH`` checked and its temporary file created before any grading (bad input,
+    exit 2, when it cannot be written or would replace a file of the student's solution)."""
+    from .output_paths import _output, _prepare, _shown
+    if text.strip() in ("", "-"):
+        raise UsageError(f"--results needs a file name (got {text!r})")
+    target = _output("--results", text, False)
+    resolved = Path(os.path.realpath(target.path))
+    sol = Path(os.path.realpath(solution))
+    if resolved.parent == sol and (resolved.suffix == ".py" or resolved.is_dir()):
+        raise UsageError(f"--results {_shown(text)} is a file of the solution in {solution}: give the results "
+                         f"another name (a .json file)")
+    if resolved.suffix == ".py":
+        raise UsageError(f"--results {_shown(text)} would write JSON over a Python file: give the results a .json "
+                         f"name")
+    _prepare([("--results", target)])
+    return target
 
 
 def check(argv: list[str], out=sys.stdout) -> int:
@@ -273,6 +506,8 @@ def check(argv: list[str], out=sys.stdout) -> int:
         raise UsageError(f"LESSON must be one of {', '.join(ids)} or all (got {args.lesson!r})")
     if not (args.time_limit > 0 and math.isfinite(args.time_limit)):
         raise UsageError(f"--time-limit must be a number of seconds > 0 (got {args.time_limit:g})")
+    if not (0.5 <= args.memory_limit <= 256):
+        raise UsageError(f"--memory-limit must be a number of GiB in 0.5..256 (got {args.memory_limit:g})")
     solution = Path(args.solution)
     if not solution.is_dir():
         raise UsageError(f"--solution {str(solution)!r} is not a folder: give the folder written by "
@@ -289,28 +524,47 @@ def check(argv: list[str], out=sys.stdout) -> int:
         bad = [s for s in (args.stage or []) if not 1 <= s <= len(lesson.stages)]
         if bad:
             raise UsageError(f"--stage must be in 1..{len(lesson.stages)} for {lesson.id} (got {bad[0]})")
-    if args.results is not None:
-        if args.results.strip() in ("", "-"):
-            raise UsageError(f"--results needs a file name (got {args.results!r})")
-        from .output_paths import _output
-        _output("--results", args.results, False)
+    target = _results_target(args.results, solution) if args.results is not None else None
+    from engine import runtime
+    runtime.init()   # the checks' own references run here; the student's code only in the grading child
     started = time.time()
     rows: list[dict] = []
-    with tempfile.TemporaryDirectory(prefix="elastic-check-") as work:
-        for lesson in wanted:
-            grader = Grader(lesson, solution, args.time_limit, out, Path(work))
-            grader.functions()
-            if not args.functions_only:
-                grader.stages(list(args.stage or range(1, len(lesson.stages) + 1)))
-            rows += grader.rows
-    failed = sum(not r["passed"] for r in rows)
-    out.write(f"\n{len(rows) - failed} of {len(rows)} claims passed"
-              + (f"; {failed} failed (see the FAIL lines above)" if failed else "") + "\n")
-    if args.results:
-        doc = results_document(rows, complete=True, exit_code=1 if failed else 0,
-                               exit_reason="completed", lessons=[l.id for l in wanted], solution=str(solution),
-                               command=["python", "-m", "lessons", "check", *argv], version=package_version(),
-                               elapsed_s=round(time.time() - started, 3))
-        write_json_atomic(args.results, doc)
-        out.write(f"results: {args.results}\n")
-    return 1 if failed else 0
+    notes: list[str] = []
+    meta = dict(lessons=[l.id for l in wanted], solution=str(solution), command=["python", "-m", "lessons", "check",
+                *argv], version=package_version())
+    exit_code, reason, complete = 0, "completed", False
+    try:
+        with tempfile.TemporaryDirectory(prefix="elastic-check-") as work:
+            for lesson in wanted:
+                grader = Grader(lesson, solution, args.time_limit, out, Path(work), int(args.memory_limit * 2 ** 30))
+                try:
+                    grader.functions()
+                    if not args.functions_only:
+                        grader.stages(list(args.stage or range(1, len(lesson.stages) + 1)))
+                finally:
+                    grader.close()
+                    rows += grader.rows
+                    notes += [f"{lesson.id}: {n}" for n in grader.notes]
+        complete = True
+        failed = sum(not r["passed"] for r in rows)
+        exit_code = 1 if failed else 0
+        out.write(f"\n{len(rows) - failed} of {len(rows)} claims passed"
+                  + (f"; {failed} failed (see the FAIL lines above)" if failed else "") + "\n")
+        return exit_code
+    except (KeyboardInterrupt, Terminated) as exc:
+        signum = getattr(exc, "signum", 2)
+        exit_code, reason = 128 + signum, ("interrupted (SIGINT)" if signum == 2 else f"terminated (signal {signum})")
+        raise
+    finally:
+        if target is not None:
+            doc = results_document(rows, complete=complete, exit_code=exit_code, exit_reason=reason, notes=notes,
+                                   elapsed_s=round(time.time() - started, 3), **meta)
+            try:
+                target.write_bytes(encode(doc))
+                where = target.commit(complete)
+                out.write(f"results: {where}" + ("" if complete else " (partial: the check did not finish)") + "\n")
+            except OSError as exc:
+                target.discard()
+                out.write(f"results: could not be written ({exc}); nothing was written\n")
+        elif not complete:
+            out.write("no --results was given: nothing was written\n")

@@ -1,24 +1,28 @@
-"""One check of a student's solution, in its own process (lessons.app.grading starts it and stops
-it at its time limit).
+"""The grading child: the only process that runs the student's code (lessons.app.grading starts it,
+talks to it over two pipes and stops it at its time limits).
 
-    python -m lessons.app.grading_child LESSON SOLUTION_FILE OUT_FILE units NAME...
-    python -m lessons.app.grading_child LESSON SOLUTION_FILE OUT_FILE stages N1,N2,... NAME...
+    python -m lessons.app.grading_child LESSON SOLUTION_FILE IN_FD OUT_FD GRADER_PID CPU_S MEMORY_BYTES
 
-``units``: each named function's own checks, one after the other. ``stages``: the lesson's stages,
-one after the other, with the named functions in the engine's place. Every line of OUT_FILE is one JSON object:
-``{"start": name}`` before a function's checks (so that a time-out names the function),
-``{"task": name, "rows": [...]}`` or ``{"task": name, "error": "one line"}`` after them,
-``{"start": "stage N"}`` before a stage, ``{"stage": N, "rows": [...]}`` or ``{"stage": N, "error": ...}``
-after it.
+It ends itself with the grader and runs under CPU-time and memory limits; starts Taichi and loads
+the engine and the lesson; arms the guard (lessons.app.sandbox); imports the student's module with
+restricted builtins; says ``{"ready": ..., "notes": [...], "own": {name: why not}}`` (or
+``{"error": line}``) and then answers requests, one at a time (lessons.app.channel):
+
+- ``{"op": "call", "task", "factory", "args", "inputs"}``: the lesson's ``factory(func, *args)`` (a
+  kernel built around the student's function, or the function itself) called on ``inputs``;
+  answers ``{"ok": array or [arrays]}`` or ``{"error": line}``. The checks and their verdicts
+  stay with the grader: this process sees inputs and returns outputs, nothing else.
+- ``{"op": "install", "names"}``: the student's functions in the engine's place; ``{"ok": true}``.
+- ``{"op": "stage", "index"}``: one stage of the lesson on them; ``{"rows": [...]}`` or
+  ``{"error": line}`` (the grader validates the rows and recomputes each verdict).
+
+After each request the guard compares numpy, math and taichi with what they were: a change ends the
+process with ``{"violation": line}``, and so does anything the audit hook refuses.
 """
+import importlib
 import io
-import json
+import os
 import sys
-
-
-def _line(out, obj) -> None:
-    out.write(json.dumps(obj) + "\n")
-    out.flush()
 
 
 def _one_line(exc: BaseException, name: str) -> str:
@@ -29,53 +33,97 @@ def _one_line(exc: BaseException, name: str) -> str:
     return f"{name}: raised {type(exc).__name__}: {text[:4000]}"
 
 
+def _factory(spec: str):
+    module, _, name = spec.partition(":")
+    if not module.startswith("lessons."):
+        raise ValueError(f"factory {spec!r} is not the lessons'")
+    return getattr(importlib.import_module(module), name)
+
+
 def main(argv: list[str]) -> int:
-    lesson_id, solution, out_path, mode, *rest = argv
+    lesson_id, solution, in_fd, out_fd, grader_pid, cpu_s, memory = argv
+    in_fd, out_fd = int(in_fd), int(out_fd)
+    from .sandbox import limit_child
+    limit_child(int(grader_pid), float(cpu_s), int(memory) or None)
+    from . import channel
+    reader = channel.Reader(in_fd)
+
+    def send(msg) -> None:
+        channel.send(out_fd, msg)
+
     from engine import runtime
-    runtime.init()
-    from .._exercise import load_before_swap, load_student_module
+    info = runtime.init()
+    from .._exercise import LocalFunction, StudentError, direct, load_before_swap, normalise_result, call_student
     from . import registry
     from .exercises import exercise_module
+    from .sandbox import Guard, load_guarded, own_function
 
     lesson = registry.get(lesson_id)
-    tasks = {t.name: t for t in exercise_module(lesson).TASKS}
-    with open(out_path, "a", encoding="utf-8") as out:
+    module = exercise_module(lesson)
+    tasks = {t.name: t for t in module.TASKS}
+    load_before_swap(f"lessons.{lesson.id.replace('-', '_')}")
+    from .._framework import run_lesson
+    from .recorder import NullRecorder
+
+    cache = getattr(info, "offline_cache", None) or os.environ.get("ELASTIC_CACHE_DIR")
+    guard = Guard(lambda why: send({"violation": why}), [cache] if isinstance(cache, str) else [])
+    guard.arm()
+    try:
+        student, files = load_guarded(solution, guard.files)
+    except BaseException as exc:  # noqa: BLE001 - any failure of the student's module is reported
+        send({"error": f"{os.path.basename(solution)}: could not be imported: {type(exc).__name__}: "
+                       f"{' '.join(str(exc).split())[:240]}"})
+        return 0
+    changed = guard.tampered()
+    if changed:
+        guard.refuse(changed)
+    send({"ready": True, "notes": list(guard.notes), "own": {n: own_function(student, n, files) for n in tasks}})
+    built: dict = {}
+    while True:
         try:
-            student = load_student_module(solution)
-        except BaseException as exc:  # noqa: BLE001 - any failure of the student's module is reported
-            _line(out, {"error": f"{solution}: could not be imported: {type(exc).__name__}: "
-                                 f"{' '.join(str(exc).split())[:240]}"})
+            request = reader.read()
+        except channel.ChannelClosed:
             return 0
-        if mode == "units":
-            for name in rest:
-                _line(out, {"start": name})
-                try:
-                    rows = [e.to_dict(lesson.id, 0, "your functions") for e in tasks[name].check(getattr(student, name))]
-                    _line(out, {"task": name, "rows": rows})
-                except Exception as exc:  # noqa: BLE001
-                    _line(out, {"task": name, "error": _one_line(exc, name)})
-            return 0
-        stages = [int(s) for s in rest[0].split(",")]
-        names = rest[1:]
-        load_before_swap(f"lessons.{lesson.id.replace('-', '_')}")
-        module = exercise_module(lesson)
-        for name in names:
-            tasks[name].install(getattr(student, name))
-        if hasattr(module, "finish_install"):
-            module.finish_install()
-        from .._framework import run_lesson
-        from .recorder import NullRecorder
-        cfg = lesson.config()
-        for stage in stages:
-            _line(out, {"start": f"stage {stage}"})
+        op = request.get("op")
+        if op == "call":
+            name = request["task"]
+            factory = _factory(request["factory"])
+            key = (name, request["factory"], tuple(request["args"]))
+            kernel = factory is not direct
+            try:
+                if key not in built:
+                    built[key] = factory(getattr(student, name), *request["args"])
+                result = call_student(name, built[key], *request["inputs"], kernel=kernel)
+                out = normalise_result(name, result, kernel)
+                answer = {"ok": list(out) if isinstance(out, tuple) else out, "tuple": isinstance(out, tuple)}
+            except StudentError as exc:
+                answer = {"error": str(exc)}
+            except Exception as exc:  # noqa: BLE001
+                answer = {"error": _one_line(exc, name)}
+        elif op == "install":
+            for name in request["names"]:
+                tasks[name].install(getattr(student, name))
+            if hasattr(module, "finish_install"):
+                module.finish_install()
+            answer = {"ok": True}
+        elif op == "stage":
+            index = int(request["index"])
             rows: list = []
             try:
-                run_lesson(lesson, cfg, NullRecorder(), [stage], out=io.StringIO(), err=io.StringIO(), quiet=True,
-                           results=rows)
-                _line(out, {"stage": stage, "rows": rows})
+                run_lesson(lesson, lesson.config(), NullRecorder(), [index], out=io.StringIO(), err=io.StringIO(),
+                           quiet=True, results=rows)
+                answer = {"rows": rows}
             except Exception as exc:  # noqa: BLE001
-                _line(out, {"stage": stage, "error": _one_line(exc, f"stage {stage}")})
-    return 0
+                answer = {"error": _one_line(exc, f"stage {index}")}
+        else:
+            return 0
+        changed = guard.tampered()
+        if changed:
+            guard.refuse(changed)
+        if guard.notes:
+            answer["notes"] = list(guard.notes)
+            guard.notes.clear()
+        send(answer)
 
 
 if __name__ == "__main__":

@@ -12,8 +12,8 @@ import taichi as ti
 
 from engine.energies import membrane as Mb
 from engine.fields import scalar_array, vec3_array
-from .._exercise import TI_FUNC, Sampler, Task, agreement, call_student, central_difference, deviation, \
-    factor_text, first_bad, ratio, substitute
+from .._exercise import TI_FUNC, Sampler, Task, agreement, central_difference, deviation, factor_text, \
+    first_bad, matches, ratio, substitute
 
 mat2_array = ti.types.ndarray(dtype=ti.math.mat2, ndim=1)
 
@@ -45,20 +45,24 @@ def _stress_call(func):
     return call
 
 
-def _triangles(n: int = 40, seed: int = 11):
-    """Random rest triangles (their Dm^-1 in a (u, v) frame) and deformed edges d1, d2 (m)."""
+def _triangles(n: int = 48, seed: int = 11):
+    """Random rest triangles (their Dm^-1 in a (u, v) frame) from 1 cm to 10 m across, every other
+    one listed clockwise, and deformed edges d1, d2 (m) at the same scales."""
     s = Sampler(seed)
+    size = s.log_uniform(n, 1e-2, 10.0)
     P = s.rng.uniform(-1.0, 1.0, (n, 3, 2))
     P[:, 1] += [1.5, 0.0]
     P[:, 2] += [0.0, 1.5]                      # well-shaped: no degenerate rest triangle
+    P[1::2] = P[1::2][:, [0, 2, 1]]            # the other orientation
+    P *= size[:, None, None]
     Dm = np.stack([P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]], axis=2)   # columns: the rest edges
     D = np.linalg.inv(Dm)
-    return s.vectors(n), s.vectors(n), D
+    return s.vectors(n) * size[:, None], s.vectors(n) * size[:, None], D
 
 
-def check_deformation_gradient(func) -> list:
+def check_deformation_gradient(student) -> list:
     d1, d2, D = _triangles()
-    got = call_student("deformation_gradient", _gradient_call(func), d1, d2, D)
+    got = student.via(_gradient_call)(d1, d2, D)
     F = np.stack([d1, d2], axis=2) @ D                                    # (n, 3, 2)
     ref = np.moveaxis(F, 2, 1)                                            # (n, 2 columns, 3)
     dev = deviation(got, ref)
@@ -74,13 +78,16 @@ def check_deformation_gradient(func) -> list:
         elif deviation(got, swapped_D) <= 1e-9:
             reason = ("deformation_gradient uses Dm^-1 transposed: w_u = d1 Dinv[0, 0] + d2 Dinv[1, 0] "
                       "(F = [d1, d2] Dm^-1, column by column)")
+        elif matches(got, np.stack([d1, d2], axis=1)):
+            reason = "deformation_gradient returns the edges d1, d2 themselves: F = [d1, d2] Dm^-1 needs Dinv"
         else:
             r = factor_text(ratio(got, ref))
             c = int(np.argmax(np.abs(got[i] - ref[i]).max(axis=1)))
             reason = (f"deformation_gradient is {r} F's columns" if r else
                       f"deformation_gradient gives {('w_u', 'w_v')[c]} = {np.round(got[i, c], 6).tolist()} at "
                       f"triangle {i} instead of {np.round(ref[i, c], 6).tolist()}")
-    return [agreement("deformation_gradient = the columns of [x1 - x0, x2 - x0] Dm^-1 (F1), 40 random triangles",
+    return [agreement("deformation_gradient = the columns of [x1 - x0, x2 - x0] Dm^-1 (F1), 48 random triangles "
+                      "from 1 cm to 10 m, both orientations",
                       "ex-deformation-gradient", dev, tol, reason)]
 
 
@@ -91,11 +98,11 @@ def _energy(wu, wv, A, ks, kh):
     return A * (0.5 * ks * ((lu - 1.0) ** 2 + (lv - 1.0) ** 2) + 0.5 * kh * s * s)
 
 
-def _columns_match(got, exact, wrong) -> bool:
+def _columns_match(got, exact, wrong, scale=None) -> bool:
     """Each of the two columns is the exact derivative or the wrong one, and at least one is wrong: a
     mistake made in one line of the student's code (one column) or in both."""
-    cols = [deviation(got[:, c], exact[:, c]) <= 1e-9 for c in range(2)]
-    bad = [deviation(got[:, c], wrong[:, c]) <= 1e-9 for c in range(2)]
+    cols = [deviation(got[:, c], exact[:, c], scale) <= 1e-9 for c in range(2)]
+    bad = [deviation(got[:, c], wrong[:, c], scale) <= 1e-9 for c in range(2)]
     return all(a or b for a, b in zip(cols, bad)) and any(b and not a for a, b in zip(cols, bad))
 
 
@@ -104,20 +111,21 @@ def _call_of(w):
     return np.arange(len(w)) // 6
 
 
-def check_stress(func) -> list:
+def check_stress(student) -> list:
     s = Sampler(12)
-    n = 40
+    n = 48
     wu = s.vectors(n, 0.6) + [1.0, 0.0, 0.0]
     wv = s.vectors(n, 0.6) + [0.0, 1.0, 0.0]
-    A, ks, kh = s.uniform(n, 0.01, 0.1), s.uniform(n, 10.0, 1000.0), s.uniform(n, 5.0, 500.0)
-    got = call_student("baraff_witkin_stress", _stress_call(func), wu, wv, A, ks, kh)
+    A, ks, kh = s.log_uniform(n, 1e-4, 10.0), s.log_uniform(n, 1.0, 1e4), s.log_uniform(n, 0.5, 5e3)
+    got = student.via(_stress_call)(wu, wv, A, ks, kh)
     ref = central_difference(lambda w: _energy(w[:, :3], w[:, 3:], A[_call_of(w)], ks[_call_of(w)], kh[_call_of(w)]),
                              np.hstack([wu, wv]), 1e-6).reshape(n, 2, 3)
-    dev = deviation(got, ref)
+    scale = A * (ks + kh)
+    dev = deviation(got, ref, scale)
     tol = 1e-6
     reason = ""
     if not dev <= tol:
-        i = first_bad(got, ref, tol)
+        i = first_bad(got, ref, tol, scale)
         lu, lv = np.linalg.norm(wu, axis=1)[:, None], np.linalg.norm(wv, axis=1)[:, None]
         aks, sh = (A * ks)[:, None], (A * kh * np.einsum("ij,ij->i", wu, wv))[:, None]
         stretch = np.stack([aks * (lu - 1.0) * wu / lu, aks * (lv - 1.0) * wv / lv], 1)
@@ -131,10 +139,12 @@ def check_stress(func) -> list:
              "has a stretch term that must point along the unit vector: d|w_u|/dw_u = w_u/|w_u|, "
              "so k_s (|w_u| - 1) w_u/|w_u|"),
             (exact / A[:, None, None], "is the derivative per unit area: multiply by the rest area A"),
+            (np.stack([aks * (lu - 1.0) * wu / lu, aks * (lv - 1.0) * wv / lv], 1) + 2.0 * shear,
+             "has twice the shear term: d/dw_u of k_h/2 (w_u . w_v)^2 is k_h (w_u . w_v) w_v (the 1/2 cancels the 2)"),
             (-exact, "has the wrong sign: it is -dW/dw (the force's sign, not the energy's derivative)"),
         ]
         r = factor_text(ratio(got, ref))
-        named = [text for wrong, text in mistakes if _columns_match(got, exact, wrong)]
+        named = [text for wrong, text in mistakes if _columns_match(got, exact, wrong, scale)]
         if not np.all(np.isfinite(got)):
             reason = f"baraff_witkin_stress returns NaN or inf at call {i}"
         elif named:
@@ -143,7 +153,8 @@ def check_stress(func) -> list:
             reason = f"baraff_witkin_stress is {r} dW/dw"
         else:
             reason = f"baraff_witkin_stress is not dW/dw: FD error {dev:.2g} at call {i}"
-    return [agreement("baraff_witkin_stress = (dW/dw_u, dW/dw_v) by finite differences (M2), 40 random triangles",
+    return [agreement("baraff_witkin_stress = (dW/dw_u, dW/dw_v) by finite differences (M2), 48 random triangles, "
+                      "A from 1 cm^2 to 10 m^2 (max deviation / A (k_s + k_h))",
                       "ex-bw-stress", dev, tol, reason, "J")]
 
 

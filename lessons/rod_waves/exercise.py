@@ -9,17 +9,25 @@ import taichi as ti
 
 from engine.energies import axial
 from engine.fields import scalar_array
-from .._exercise import TI_FUNC, Sampler, Task, call_student, agreement, central_difference, deviation, \
-    factor_text, first_bad, ratio, substitute
+from .._exercise import TI_FUNC, Sampler, Task, agreement, central_difference, deviation, factor_text, \
+    first_bad, matches, ratio, substitute
 
 
-def _force_call(axial_force):
+def _force_call(func):
+    """A kernel computing the student's stencil at every node of a rod (x, h, E) -> f (N)."""
+    axial_force = _adapter(func)
+
     @ti.kernel
     def run(x: scalar_array, h: scalar_array, E: scalar_array, f: scalar_array):
         n = x.shape[0]
         for i in range(n):
             f[i] = axial_force(x, h, E, i, n)
-    return run
+
+    def call(x, h, E):
+        f = np.zeros_like(x)
+        run(np.ascontiguousarray(x), np.ascontiguousarray(h), np.ascontiguousarray(E), f)
+        return f
+    return call
 
 
 def _adapter(func):
@@ -37,47 +45,104 @@ def _adapter(func):
     return axial_force
 
 
-def _rods(seed: int = 3):
-    """A rod of 16 nodes with random segment lengths h (m), stiffnesses E (N) and strains up to
-    +-30%; and the same rod at rest."""
+def _rods(seed: int = 3, n: int = 24):
+    """A rod of n nodes with segment lengths h from 1 mm to 1 m (each its own), stiffnesses E from
+    0.1 to 1000 N and strains up to +-30%; and the same rod at rest."""
     s = Sampler(seed)
-    h = s.uniform(15, 0.05, 0.2)
-    E = s.uniform(15, 1.0, 10.0)
-    strain = s.uniform(15, -0.3, 0.3)
-    x = np.concatenate([[0.0], np.cumsum(h * (1 + strain))])
+    h = s.log_uniform(n - 1, 1e-3, 1.0)
+    E = s.log_uniform(n - 1, 0.1, 1e3)
+    strain = s.uniform(n - 1, -0.3, 0.3)
+    x = np.concatenate([[0.0], np.cumsum(h * (1 + strain))]) + s.uniform(1, -5.0, 5.0)
     rest = np.concatenate([[0.0], np.cumsum(h)])
     return x, rest, h, E
 
 
-def check_rod_force(func) -> list:
-    x, rest, h, E = _rods()
-    run = _force_call(_adapter(func))
-    got, at_rest = np.zeros_like(x), np.zeros_like(x)
-    call_student("rod_force", run, x, h, E, got)
-    call_student("rod_force", run, rest, h, E, at_rest)
+def _stencil(x, h, E, strain=lambda length, h: length / h - 1.0, swap_h="", swap_E=""):
+    """The force at every node with a given strain formula, and each side's h or E taken from the
+    other side (``swap_*``: "both", "right" or "left"; numpy: the mistakes the check names)."""
+    n = len(x)
+    hl, hr = np.ones(n), np.ones(n)
+    El, Er = np.zeros(n), np.zeros(n)
+    hl[1:], El[1:] = h, E
+    hr[:-1], Er[:-1] = h, E
+    xl = np.concatenate([[x[0]], x[:-1]])
+    xr = np.concatenate([x[1:], [x[-1]]])
+    hl, hr = (hr if swap_h in ("both", "left") else hl), (hl if swap_h in ("both", "right") else hr)
+    El, Er = (Er if swap_E in ("both", "left") else El), (El if swap_E in ("both", "right") else Er)
+    return Er * strain(xr - x, hr) - El * strain(x - xl, hl)
 
-    def energy(xs):
-        return np.array([axial.axial_energy_kernel(np.ascontiguousarray(row), h, E) for row in xs])
-    ref = -central_difference(lambda xs: energy(xs), x[None, :], 1e-7)[0]
-    dev = deviation(got, ref)
-    tol = 1e-6
+
+def check_rod_force(student) -> list:
+    x, rest, h, E = _rods()
+    call = student.via(_force_call)
+    got, at_rest = call(x, h, E), call(rest, h, E)
+    ref = _stencil(x, h, E)
+    scale = np.full(len(x), np.max(E))
+    dev = deviation(got, ref, scale)
+    tol = 1e-9
     reason = ""
     if not dev <= tol:
-        i = first_bad(got, ref, tol)
+        i = first_bad(got, ref, tol, scale)
         r = factor_text(ratio(got, ref))
+        named = next((text for wrong, text in [
+            (_stencil(x, h, E, swap_h="both"), "divides each segment's length by the other segment's rest "
+                                               "length: the right segment's strain is (x_right - x)/h_right - 1"),
+            (_stencil(x, h, E, swap_h="right"), "divides the right segment's length by h_left: its strain is "
+                                                "(x_right - x)/h_right - 1"),
+            (_stencil(x, h, E, swap_h="left"), "divides the left segment's length by h_right: its strain is "
+                                               "(x - x_left)/h_left - 1"),
+            (_stencil(x, h, E, swap_E="both"), "takes each segment's stiffness from the other side: the right "
+                                               "segment pulls with E_right, the left with E_left"),
+            (_stencil(x, h, E, swap_E="right"), "gives the right segment the left one's stiffness: it pulls with "
+                                                "E_right"),
+            (_stencil(x, h, E, swap_E="left"), "gives the left segment the right one's stiffness: it pulls with "
+                                               "E_left"),
+            (_stencil(x, h, E, strain=lambda length, h: length - h), "uses the stretch (length - h) as the strain: "
+                                                                      "it is length/h - 1, dimensionless"),
+            (_stencil(x, h, E, strain=lambda length, h: (length - h) / h ** 2), "divides the stretch by h^2: the "
+                                                                                 "strain is (length - h)/h"),
+            (_stencil(x, h, E, strain=lambda length, h: length / h), "leaves out the -1: a segment at its rest "
+                                                                      "length pulls with no force"),
+        ] if matches(got, wrong, scale)), "")
         if not np.all(np.isfinite(got)):
-            reason = f"rod_force returns NaN or inf at node {i}"
-        elif np.abs(at_rest).max() > 1e-9 * np.abs(ref).max():
-            reason = ("rod_force is not zero for the rod at rest: a segment's strain is (its length)/h - 1; "
-                      "is the rest length used (the -1)?")
+            reason = f"rod_force returns NaN or inf at node {i}" + (" (a free end: E = 0, h = 1 there)"
+                                                                    if i in (0, len(x) - 1) else "")
         elif r == "minus":
             reason = "rod_force has the wrong sign: it is +dW/dx; a stretched segment pulls its nodes together"
+        elif named:
+            reason = f"rod_force {named}"
+        elif np.abs(at_rest).max() > 1e-9 * scale.max():
+            k = int(np.argmax(np.abs(at_rest)))
+            reason = (f"rod_force is not zero for the rod at rest (node {k}: {at_rest[k]:.3g} N)" +
+                      (": at a free end the missing segment comes with E = 0 and h = 1 and must give no force"
+                       if k in (0, len(x) - 1) else
+                       ": a segment's strain is (its length)/h - 1 and its force E times that"))
         elif r:
             reason = f"rod_force is {r} -dW/dx of (R1)"
         else:
-            reason = f"force is not -dW/dx: FD error {dev:.2g} at node {i} of 16 (ends included)"
-    return [agreement("rod_force = -dW/dx of (R1) by finite differences, a random 16-node rod (max rel. dev.)",
-                      "ex-rod-force", dev, tol, reason)]
+            reason = (f"rod_force is not -dW/dx: {got[i]:.6g} N instead of {ref[i]:.6g} N at node {i} of {len(x)} "
+                      f"(ends included)")
+    return [agreement(f"rod_force = -dW/dx of (R1), a random {len(x)}-node rod, h from 1 mm to 1 m (max deviation / "
+                      f"max E)", "ex-rod-force", dev, tol, reason)]
+
+
+def _energy_check(student) -> list:
+    """The stencil is minus the gradient of the rod's energy (R1): finite differences of the
+    engine's energy at a second rod, so that the formula above is not the only reference."""
+    x, _, h, E = _rods(seed=4, n=12)
+
+    def energy(xs):
+        return np.array([axial.axial_energy_kernel(np.ascontiguousarray(row), h, E) for row in xs])
+    ref = -central_difference(energy, x[None, :], 1e-7)[0]
+    got = student.via(_force_call)(x, h, E)
+    dev = deviation(got, ref)
+    reason = "" if dev <= 1e-6 else f"rod_force is not minus the gradient of the rod's energy (deviation {dev:.2g})"
+    return [agreement("rod_force = -dW/dx by finite differences of the energy, a random 12-node rod",
+                      "ex-rod-force-gradient", dev, 1e-6, reason)]
+
+
+def check_rod_forces(student) -> list:
+    return check_rod_force(student) + _energy_check(student)
 
 
 def install_rod_force(func) -> None:
@@ -93,6 +158,6 @@ right neighbour (m); h_left, h_right: the rest lengths of the segments to the le
 right (m); E_left, E_right: those segments' stiffnesses (N, Young's modulus times the section).
 Each segment's strain is its length over its rest length, minus 1; a segment pulls on its two
 nodes with its stiffness times its strain. At the rod's free ends the missing segment comes
-with E = 0 (and h = 1), so the same stencil serves every node.""", install_rod_force, check_rod_force,
+with E = 0 (and h = 1), so the same stencil serves every node.""", install_rod_force, check_rod_forces,
          (), "float"),
 ]

@@ -7,13 +7,15 @@ its own first: the energy against (S1), the force against finite differences of 
 Hessian block against finite differences of the force, the updates against one step by hand.
 """
 
+import math
+
 import numpy as np
 import taichi as ti
 
 from engine.energies import springs as S
 from engine.integrators import kernels as K
-from .._exercise import call_student, TI_FUNC, Sampler, Task, agreement, central_difference, deviation, \
-    factor_text, first_bad, ratio, substitute
+from .._exercise import TI_FUNC, Sampler, StudentError, Task, agreement, central_difference, deviation, \
+    factor_text, first_bad, matches, ratio, substitute
 
 from engine.fields import mat3_array as mat3s, scalar_array as floats, vec3_array as vec3s
 
@@ -56,14 +58,15 @@ def _engine_block(d, L, c):
     return S.spring_block(d, 1.0 / L, c / L, 0)
 
 
-def _springs(n: int = 48, seed: int = 11):
-    """Springs to check on: edge vectors d (m) of lengths 0.5 L to 1.6 L in random directions, the
-    first four exactly at rest length; rest lengths L (m) and coefficients c (J)."""
+def _springs(n: int = 64, seed: int = 11):
+    """Springs to check on: edge vectors d (m) from 0.3 L to 2 L long in random directions, the first
+    six exactly at rest length; rest lengths L from 1 mm to 100 m and coefficients c from 0.01 to
+    10^4 J (several scales, so that a formula right only for L = 1 or c = 1 shows)."""
     s = Sampler(seed)
-    L = s.uniform(n, 0.5, 2.0)
-    c = s.uniform(n, 1.0, 10.0)
-    stretch = s.uniform(n, 0.5, 1.6)
-    stretch[:4] = 1.0
+    L = s.log_uniform(n, 1e-3, 1e2)
+    c = s.log_uniform(n, 1e-2, 1e4)
+    stretch = s.uniform(n, 0.3, 2.0)
+    stretch[:6] = 1.0
     u = s.vectors(n)
     u /= np.linalg.norm(u, axis=1)[:, None]
     return u * (stretch * L)[:, None], L, c
@@ -73,93 +76,148 @@ def _where(d, L, i: int) -> str:
     return f"spring {i} (l = {np.linalg.norm(d[i]):.3g} m, L = {L[i]:.3g} m)"
 
 
+def _named(got, candidates, scale) -> str:
+    """The first known mistake whose results the student's are, or ''."""
+    return next((text for wrong, text in candidates if matches(got, wrong, scale)), "")
+
+
 # ------------------------------------------------------------------ the checks
 
-def check_energy(func) -> list:
+def check_energy(student) -> list:
     d, L, c = _springs()
-    got = call_student("spring_energy", _spring_call(func, "s"), d, L, c)
-    ref = _spring_call(S.spring_energy, "s")(d, L, c)
-    dev = deviation(got, ref)
+    got = student.via(_spring_call, "s")(d, L, c)
+    l = np.linalg.norm(d, axis=1)
+    ref = 0.5 * c * (l / L - 1.0) ** 2
+    dev = deviation(got, ref, scale=c)
     tol = 1e-10
     reason = ""
     if not dev <= tol:
-        i = first_bad(got, ref, tol)
+        i = first_bad(got, ref, tol, scale=c)
         r = factor_text(ratio(got, ref))
+        named = _named(got, [
+            (0.5 * c * (l - L) ** 2, "uses the stretch l - L as the strain: the strain is l/L - 1, "
+                                     "dimensionless"),
+            (0.5 * c * ((l / L) ** 2 - 1.0) ** 2, "uses (l/L)^2 - 1 as the strain: (S1)'s strain is l/L - 1"),
+            (0.5 * c * (l / L - 1.0) ** 2 * L, "is L times (S1), 1/2 c (l/L - 1)^2 L: c = k L already holds "
+                                               "the L of the notes' 1/2 k (l/L - 1)^2 L"),
+            (0.5 * c * (l / L - 1.0) ** 2 / L, "divides by L: (S1) is 1/2 c (l/L - 1)^2 with c in J"),
+        ], c)
         if not np.all(np.isfinite(got)):
             reason = f"spring_energy returns NaN or inf at {_where(d, L, i)}"
-        elif np.any(np.abs(got[:4]) > 1e-12 * np.abs(ref).max()):
+        elif np.any(np.abs(got[:6]) > 1e-12 * c[:6]):
             reason = ("spring_energy is not zero at the rest length (l = L): the strain is l/L - 1; "
                       "is the rest length used?")
+        elif named:
+            reason = f"spring_energy {named}"
         elif r:
             reason = f"spring_energy is {r} 1/2 c (l/L - 1)^2" + (": the 1/2 is missing" if r == "twice" else "")
         else:
             reason = (f"spring_energy differs from 1/2 c (l/L - 1)^2 at {_where(d, L, i)}: "
                       f"{got[i]:.6g} J instead of {ref[i]:.6g} J")
-    return [agreement("spring_energy = 1/2 c (l/L - 1)^2 (S1), 48 springs (max rel. deviation)",
-                      "ex-spring-energy", dev, tol, reason)]
+    return [agreement(f"spring_energy = 1/2 c (l/L - 1)^2 (S1), {len(d)} springs, L from 1 mm to 100 m "
+                      f"(max deviation / c)", "ex-spring-energy", dev, tol, reason)]
 
 
-def check_force(func) -> list:
+def check_force(student) -> list:
     d, L, c = _springs()
-    got = call_student("spring_force", _spring_call(func, "v"), d, L, c)
+    got = student.via(_spring_call, "v")(d, L, c)
+    l = np.linalg.norm(d, axis=1)
+    n = d / l[:, None]
     energy = _spring_call(S.spring_energy, "s")
-    ref = -central_difference(lambda dd: energy(dd, np.repeat(L, 3), np.repeat(c, 3)), d, 1e-6)
-    dev = deviation(got, ref)
+    h = 1e-6 * L
+    ref = -central_difference(lambda dd: energy(dd * np.repeat(h, 3)[:, None], np.repeat(L, 3), np.repeat(c, 3)),
+                              d / h[:, None], 1.0) / h[:, None]   # steps of 1e-6 L at each spring's own scale
+    scale = c / L
+    dev = deviation(got, ref, scale)
     tol = 1e-6
+    at_zero = student.via(_spring_call, "v")(np.zeros((3, 3)), L[:3], c[:3])
     reason = ""
     if not dev <= tol:
-        i = first_bad(got, ref, tol)
+        i = first_bad(got, ref, tol, scale)
         r = factor_text(ratio(got, ref))
+        strain = (l / L - 1.0)[:, None]
+        named = _named(got, [
+            (-(c / L)[:, None] * strain * d, "points along d, not along the unit vector d/l: the force is "
+                                             "-(c/L)(l/L - 1) d/l"),
+            (-c[:, None] * strain * n, "is missing 1/L: dW/dl = (c/L)(l/L - 1), the chain rule through l/L"),
+            (-(c / L ** 2)[:, None] * strain * n, "divides by L once too often: dW/dl = (c/L)(l/L - 1)"),
+            (-(c / L)[:, None] * (l - L)[:, None] * n, "uses l - L as the strain: it is l/L - 1"),
+        ], scale)
         if not np.all(np.isfinite(got)):
             reason = f"spring_force returns NaN or inf at {_where(d, L, i)}"
-        elif np.any(np.abs(got[:4]) > 1e-9 * np.abs(ref).max()):
+        elif np.any(np.abs(got[:6]) > 1e-9 * scale[:6, None]):
             reason = "spring_force is not zero at the rest length (l = L): is the rest length used?"
         elif r == "minus":
             reason = ("spring_force has the wrong sign: it is +dW/dx, so a stretched spring would push its "
                       "ends apart; the force is minus the gradient")
+        elif named:
+            reason = f"spring_force {named}"
         elif r:
             reason = f"spring_force is {r} -dW/dx of (S1)"
         else:
-            reason = f"force is not -dW/dx: FD error {dev:.2g} at {_where(d, L, i)}"
-    return [agreement("spring_force = -dW/dx of (S1) by finite differences (S2), 48 springs",
-                      "ex-spring-force", dev, tol, reason)]
+            reason = f"force is not -dW/dx: deviation {dev:.2g} of c/L at {_where(d, L, i)}"
+    zero_dev = deviation(at_zero, np.zeros((3, 3)), scale=(c / L)[:3])
+    zero_reason = "" if zero_dev <= 1e-12 else (
+        "spring_force returns NaN or inf at l = 0 (d/l is 0/0): the template asks for the zero vector there"
+        if not np.all(np.isfinite(at_zero)) else "spring_force is not the zero vector at l = 0")
+    return [agreement(f"spring_force = -dW/dx of (S1) by finite differences (S2), {len(d)} springs "
+                      f"(max deviation / (c/L))", "ex-spring-force", dev, tol, reason),
+            agreement("spring_force is the zero vector when l = 0 (the template's promise)", "ex-spring-force-zero",
+                      zero_dev, 1e-12, zero_reason)]
 
 
-def check_hessian(func) -> list:
+def check_hessian(student) -> list:
     d, L, c = _springs()
-    got = call_student("spring_hessian", _spring_call(func, "m"), d, L, c)
+    got = student.via(_spring_call, "m")(d, L, c)
     force = _spring_call(_engine_force, "v")
-    ref = -central_difference(lambda dd: force(dd, np.repeat(L, 3), np.repeat(c, 3)), d, 1e-6)
-    dev = deviation(got, ref)
+    h = 1e-6 * L
+    ref = -central_difference(lambda dd: force(dd * np.repeat(h, 3)[:, None], np.repeat(L, 3), np.repeat(c, 3)),
+                              d / h[:, None], 1.0) / h[:, None, None]
+    scale = c / L ** 2
+    dev = deviation(got, ref, scale)
     tol = 1e-6
     reason = ""
     if not dev <= tol:
-        i = first_bad(got, ref, tol)
+        i = first_bad(got, ref, tol, scale)
         r = factor_text(ratio(got, ref))
-        n = d / np.linalg.norm(d, axis=1)[:, None]
-        along = np.einsum("nij,nj->ni", got - ref, n)
+        l = np.linalg.norm(d, axis=1)
+        n = d / l[:, None]
+        nnT = np.einsum("ni,nj->nij", n, n)
+        along = (c / L ** 2)[:, None, None] * nnT
+        across = (c / L ** 2 * (1.0 - L / l))[:, None, None] * (np.eye(3) - nnT)
+        clipped = along + np.where((l < L)[:, None, None], 0.0, across)
+        named = _named(got, [
+            (along, "has only the part along the spring: the transverse term (c/L^2)(1 - L/l)(I - n n^T) is "
+                    "missing"),
+            (clipped, "clips the transverse term of compressed springs: write the exact block, the engine "
+                      "clips it where it needs to"),
+            (along - across, "has the transverse term with the wrong sign: it is (c/L^2)(1 - L/l)(I - n n^T)"),
+            (along + (c / L ** 2 * (1.0 - l / L))[:, None, None] * (np.eye(3) - nnT),
+             "has 1 - l/L in the transverse term: it is 1 - L/l (the tension over l)"),
+        ], scale)
         if not np.all(np.isfinite(got)):
             reason = f"spring_hessian returns NaN or inf at {_where(d, L, i)}"
-        elif np.abs(got - np.transpose(got, (0, 2, 1))).max() > 1e-9 * np.abs(ref).max():
+        elif np.abs(got - np.transpose(got, (0, 2, 1))).max(axis=(1, 2)).max(initial=0) > 1e-9 * scale.max():
             reason = "spring_hessian is not symmetric: a Hessian block K = d^2W/dd^2 is"
         elif r == "minus":
             reason = "spring_hessian has the wrong sign: it is df/dx; the Hessian is -df/dx = d^2W/dx^2"
+        elif named:
+            reason = f"spring_hessian {named}"
         elif r:
             reason = f"spring_hessian is {r} d^2W/dx^2 of (S1)"
-        elif np.abs(along).max() <= 1e-6 * np.abs(ref).max():
-            reason = ("spring_hessian is right along the spring but not across it: the transverse term "
-                      "(c/L^2)(1 - L/l)(I - n n^T) is missing or wrong")
         else:
-            reason = f"Hessian is not -df/dx: FD error {dev:.2g} at {_where(d, L, i)}"
-    return [agreement("spring_hessian = -df/dx by finite differences of the force (S3), 48 springs",
-                      "ex-spring-hessian", dev, tol, reason)]
+            reason = f"Hessian is not -df/dx: deviation {dev:.2g} of c/L^2 at {_where(d, L, i)}"
+    return [agreement(f"spring_hessian = -df/dx by finite differences of the force (S3), {len(d)} springs "
+                      f"(max deviation / (c/L^2))", "ex-spring-hessian", dev, tol, reason)]
 
 
-def _update_call(func, n_in: int):
-    """A kernel calling func(x, v, a, dt) -> (x+, v+) (n_in = 4) or func(v, a, dt) -> v+ (n_in = 3)."""
+def _update_call(func, n_in: int, scalar: bool = False):
+    """A kernel calling func(x, v, a, dt) -> (x+, v+) (n_in = 4) or func(v, a, dt) -> v+ (n_in = 3),
+    on vec3 states or (``scalar``) on floats."""
+    arr = floats if scalar else vec3s
     if n_in == 4:
         @ti.kernel
-        def run(x: vec3s, v: vec3s, a: vec3s, dt: floats, xo: vec3s, vo: vec3s):
+        def run(x: arr, v: arr, a: arr, dt: floats, xo: arr, vo: arr):
             for i in range(x.shape[0]):
                 xo[i], vo[i] = func(x[i], v[i], a[i], dt[i])
 
@@ -169,7 +227,7 @@ def _update_call(func, n_in: int):
             return xo, vo
     else:
         @ti.kernel
-        def run(v: vec3s, a: vec3s, dt: floats, vo: vec3s):
+        def run(v: arr, a: arr, dt: floats, vo: arr):
             for i in range(v.shape[0]):
                 vo[i] = func(v[i], a[i], dt[i])
 
@@ -181,66 +239,102 @@ def _update_call(func, n_in: int):
 
 
 def _states(n: int = 32, seed: int = 5):
+    """Random states: vec3 x, v, a and steps dt from 1e-5 to 1 s; and the same as floats."""
     s = Sampler(seed)
-    return s.vectors(n), s.vectors(n), s.vectors(n, 10.0), s.uniform(n, 1e-3, 0.1)
+    vec = (s.vectors(n), s.vectors(n), s.vectors(n, 10.0), s.log_uniform(n, 1e-5, 1.0))
+    flat = (s.vectors(n)[:, 0].copy(), s.vectors(n)[:, 0].copy(), s.vectors(n, 10.0)[:, 0].copy(),
+            s.log_uniform(n, 1e-5, 1.0))
+    return vec, flat
 
 
-def _one_step(name: str, got, ref, what: str, id: str, diagnose) -> list:
-    dev = max(deviation(g, r) for g, r in zip(got, ref))
-    tol = 1e-13
-    reason = "" if dev <= tol else diagnose()
-    return [agreement(f"{name}: {what}, 32 random states (max rel. deviation)", id, dev, tol, reason)]
+def _one_step(student, n_in: int, reference, what: str, id: str, diagnose, seed: int) -> list:
+    """The update on vec3 states and on floats (the template promises both) against ``reference``."""
+    exps = []
+    for states, scalar in zip(_states(seed=seed), (False, True)):
+        states = states if n_in == 4 else states[1:]
+        try:
+            got = student.via(_update_call, n_in, scalar)(*states)
+        except StudentError as exc:
+            if not scalar:
+                raise
+            got, why = None, f"{exc}: the same code must work when x, v and a are floats (the rod)"
+        got = got if isinstance(got, tuple) else (got,) if got is not None else None
+        ref = reference(*states)
+        ref = ref if isinstance(ref, tuple) else (ref,)
+        if got is not None:
+            dev = max(deviation(g, r) for g, r in zip(got, ref))
+            why = "" if dev <= 1e-13 else diagnose(states, got)
+        else:
+            dev = math.inf
+        kind = "floats" if scalar else "vec3"
+        exps.append(agreement(f"{student.name}: {what}, 32 random {kind} states, dt from 1e-5 to 1 s "
+                              f"(max rel. deviation)", f"{id}{'-float' if scalar else ''}", dev, 1e-13, why))
+    return exps
 
 
-def check_symplectic(func) -> list:
-    x, v, a, dt = _states()
-    xo, vo = call_student("symplectic_euler", _update_call(func, 4), x, v, a, dt)
-    v1 = v + dt[:, None] * a
-    x1 = x + dt[:, None] * v1
+def check_symplectic(student) -> list:
+    def reference(x, v, a, dt):
+        v1 = v + _col(dt, v) * a
+        return x + _col(dt, v) * v1, v1
 
-    def diagnose():
+    def diagnose(states, got):
+        x, v, a, dt = states
+        xo, vo = got
         if not (np.all(np.isfinite(xo)) and np.all(np.isfinite(vo))):
             return "symplectic_euler returns NaN or inf"
-        if deviation(vo, v1) > 1e-13:
+        if matches(vo, v + 0.5 * _col(dt, v) * a, tol=1e-13):
+            return "symplectic_euler kicks by dt/2 a: symplectic Euler's kick is a whole step, v+ = v + dt a"
+        if deviation(vo, v + _col(dt, v) * a) > 1e-13:
             return "symplectic_euler's velocity is not v + dt a"
-        if deviation(xo, x + dt[:, None] * v) <= 1e-13:
+        if deviation(xo, x + _col(dt, v) * v) <= 1e-13:
             return ("symplectic_euler moves x with the old velocity: that is forward Euler (E1); symplectic "
                     "Euler moves x with the new velocity v+ (E2)")
         return "symplectic_euler's position is not x + dt v+"
-    return _one_step("symplectic_euler", (xo, vo), (x1, v1), "one step = v+ = v + dt a, x+ = x + dt v+ (E2)",
-                     "ex-symplectic-euler", diagnose)
+    return _one_step(student, 4, reference, "one step = v+ = v + dt a, x+ = x + dt v+ (E2)", "ex-symplectic-euler",
+                     diagnose, 5)
 
 
-def check_kick_drift(func) -> list:
-    x, v, a, dt = _states(seed=6)
-    xo, vo = call_student("verlet_kick_drift", _update_call(func, 4), x, v, a, dt)
-    vh = v + 0.5 * dt[:, None] * a
-    xh = x + dt[:, None] * vh
+def _col(dt, like):
+    return dt[:, None] if np.ndim(like) == 2 else dt
 
-    def diagnose():
+
+def check_kick_drift(student) -> list:
+    def reference(x, v, a, dt):
+        vh = v + 0.5 * _col(dt, v) * a
+        return x + _col(dt, v) * vh, vh
+
+    def diagnose(states, got):
+        x, v, a, dt = states
+        xo, vo = got
+        dt = _col(dt, v)
         if not (np.all(np.isfinite(xo)) and np.all(np.isfinite(vo))):
             return "verlet_kick_drift returns NaN or inf"
-        if deviation(vo, v + dt[:, None] * a) <= 1e-13:
+        if deviation(vo, v + dt * a) <= 1e-13:
             return "verlet_kick_drift kicks by dt a: velocity Verlet's first kick is half a step, dt/2 a"
-        if deviation(vo, vh) > 1e-13:
+        if deviation(vo, v + 0.5 * dt * a) > 1e-13:
             return "verlet_kick_drift's velocity is not v + dt/2 a"
+        if deviation(xo, x + dt * v) <= 1e-13:
+            return "verlet_kick_drift drifts with the old velocity: the drift uses the half-kicked v*"
+        if deviation(xo, x + 0.5 * dt * (v + 0.5 * dt * a)) <= 1e-13:
+            return "verlet_kick_drift drifts half a step: the drift is a whole step, x+ = x + dt v*"
         return "verlet_kick_drift's position is not x + dt v* (the half-kicked velocity)"
-    return _one_step("verlet_kick_drift", (xo, vo), (xh, vh), "v* = v + dt/2 a, x+ = x + dt v* (E3)",
-                     "ex-verlet-kick-drift", diagnose)
+    return _one_step(student, 4, reference, "v* = v + dt/2 a, x+ = x + dt v* (E3)", "ex-verlet-kick-drift",
+                     diagnose, 6)
 
 
-def check_kick(func) -> list:
-    _, v, a, dt = _states(seed=8)
-    vo = call_student("verlet_kick", _update_call(func, 3), v, a, dt)
-    ref = v + 0.5 * dt[:, None] * a
+def check_kick(student) -> list:
+    def reference(v, a, dt):
+        return v + 0.5 * _col(dt, v) * a
 
-    def diagnose():
+    def diagnose(states, got):
+        v, a, dt = states
+        (vo,) = got
         if not np.all(np.isfinite(vo)):
             return "verlet_kick returns NaN or inf"
-        if deviation(vo, v + dt[:, None] * a) <= 1e-13:
+        if deviation(vo, v + _col(dt, v) * a) <= 1e-13:
             return "verlet_kick kicks by dt a: velocity Verlet's second kick is half a step, dt/2 a(x+)"
         return "verlet_kick is not v* + dt/2 a(x+)"
-    return _one_step("verlet_kick", (vo,), (ref,), "v+ = v* + dt/2 a(x+) (E3)", "ex-verlet-kick", diagnose)
+    return _one_step(student, 3, reference, "v+ = v* + dt/2 a(x+) (E3)", "ex-verlet-kick", diagnose, 8)
 
 
 # ------------------------------------------------------------------ taking the engine's place

@@ -190,3 +190,145 @@ def test_an_interrupted_check_stops_its_child_and_exits_130(tmp_path):
     assert proc.returncode == 130, err
     left = subprocess.run(["pgrep", "-f", f"grading_child springs {folder}"], capture_output=True, text=True)
     assert left.stdout.strip() == "", "a child of the check is still running"
+
+
+# ------------------------------------------------------------------ solutions that try to pass without the physics
+
+def _springs_with(tmp_path, head: str = "", replace: tuple = ()) -> Path:
+    folder = reference(tmp_path / "s", "springs")
+    path = folder / "springs.py"
+    text = path.read_text()
+    for old, new in replace:
+        assert old in text
+        text = text.replace(old, new, 1)
+    path.write_text(text.replace("import taichi as ti\n", "import taichi as ti\n" + head, 1))
+    return folder
+
+
+def _rows(tmp_path) -> dict:
+    return {row["id"]: row for row in json.loads((tmp_path / "out.json").read_text())["experiments"]}
+
+
+@pytest.mark.parametrize("head,needle", [
+    ("from engine.energies.springs import spring_force as engine_force\n", "imports from engine.energies.springs"),
+    ("import lessons.springs.solution as answer\n", "imports lessons.springs.solution"),
+    ("import sys\n", "imports sys"),
+    ("import numpy as np\nnp.abs = lambda x: 0.0 * x\n", "changes np.abs"),
+    ("import numpy as np\nhelper = getattr(np, 'sy' + 's')\n", "uses getattr"),
+    ("open('/tmp/forged.jsonl', 'a').write('{}')\n", "uses open"),
+    ("k = ti.lang.impl.__dict__\n", "private attribute .__dict__"),
+    ("import numpy as np\nm = np\nm.abs = None\n", "binds the module np"),
+])
+def test_a_module_that_reaches_past_its_arguments_is_refused_in_one_line_before_it_runs(tmp_path, head, needle):
+    _springs_with(tmp_path, head)
+    r = lessons_cli("check", "springs", "--solution", "s", "--functions-only", "--results", "out.json", cwd=tmp_path)
+    assert r.returncode == 1
+    rows = _rows(tmp_path)
+    assert not rows["ex-module-rules"]["passed"]
+    assert needle in rows["ex-module-rules"]["reason"], rows["ex-module-rules"]["reason"]
+    assert "springs.py: line " in rows["ex-module-rules"]["reason"]
+    assert all(not row["passed"] for row in rows.values())
+    assert not Path("/tmp/forged.jsonl").exists()
+
+
+def test_a_forgery_the_reading_misses_is_stopped_when_it_runs_and_fails_the_module(tmp_path):
+    """ndarray.dump writes a file: the guard ends the student's process at the attempt, and every
+    function then fails with its reason (nothing the solution wrote reaches the verdicts)."""
+    target = tmp_path / "forged.pickle"
+    _springs_with(tmp_path, f"import numpy as np\nnp.zeros(3).dump({str(target)!r})\n")
+    r = lessons_cli("check", "springs", "--solution", "s", "--results", "out.json", cwd=tmp_path)
+    assert r.returncode == 1
+    rows = _rows(tmp_path)
+    assert not target.exists()
+    assert rows and all(not row["passed"] for row in rows.values())
+    assert "the solution tried to write" in rows["ex-spring-energy-runs"]["reason"]
+    assert "not run:" in rows["stage1-ran"]["reason"]
+
+
+def test_ti_init_in_a_solution_is_ignored_and_said(tmp_path):
+    folder = reference(tmp_path / "s", "membranes")
+    path = folder / "membranes.py"
+    path.write_text(path.read_text().replace("import taichi as ti\n", "import taichi as ti\n\nti.init(arch=ti.cpu)\n"))
+    r = lessons_cli("check", "membranes", "--solution", "s", "--stage", "1", "--results", "out.json", cwd=tmp_path)
+    assert r.returncode == 0, r.stdout[-2000:]
+    assert "note: membranes.py: line 4: calls ti.init(...): the grader ignores it" in r.stdout
+    doc = json.loads((tmp_path / "out.json").read_text())
+    assert doc["failed"] == 0 and any("ti.init" in n for n in doc["notes"])
+
+
+def test_a_hang_at_import_is_charged_once(tmp_path):
+    import time
+    _springs_with(tmp_path, "k = 1.0\nwhile k > 0.0:\n    k = k + 1.0\n")
+    start = time.monotonic()
+    r = lessons_cli("check", "springs", "--solution", "s", "--time-limit", "15", "--results", "out.json",
+                    cwd=tmp_path)
+    elapsed = time.monotonic() - start
+    assert r.returncode == 1
+    rows = _rows(tmp_path)
+    assert rows["ex-spring-energy-runs"]["reason"] == ("your module did not finish importing within 15 s (an endless "
+                                                      "loop at import?)")
+    assert elapsed < 15 * 2 + 30, elapsed
+
+
+@pytest.mark.parametrize("results", ["s/springs.py", "s/answer.py", "out.py"])
+def test_results_that_would_replace_the_solution_are_refused_up_front(tmp_path, results):
+    folder = reference(tmp_path / "s", "springs")
+    before = (folder / "springs.py").read_text()
+    r = lessons_cli("check", "springs", "--solution", "s", "--functions-only", "--results", results, cwd=tmp_path)
+    assert r.returncode == 2
+    assert len(r.stderr.strip().splitlines()) == 1 and "--results" in r.stderr
+    assert (folder / "springs.py").read_text() == before
+    assert sorted(p.name for p in folder.iterdir()) == ["springs.py"]
+
+
+def test_killing_the_grader_ends_its_child(tmp_path):
+    import signal
+    import time
+    folder = _springs_with(tmp_path, replace=[("    v_half = v + 0.5 * dt * a\n",
+                                               "    v_half = v + 0.5 * dt * a\n    k = 1.0\n    while k > 0.0:\n"
+                                               "        k = k + 1.0\n")])
+    env = dict(os.environ, PYTHONPATH=str(ROOT), ELASTIC_CACHE_DIR=str(ROOT / ".ti_cache"))
+    proc = subprocess.Popen([sys.executable, "-m", "lessons", "check", "springs", "--solution", "s",
+                             "--functions-only"], cwd=tmp_path, env=env, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    time.sleep(12)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    for _ in range(50):
+        left = subprocess.run(["pgrep", "-f", f"grading_child springs {folder}"], capture_output=True, text=True)
+        if not left.stdout.strip():
+            break
+        time.sleep(0.2)
+    assert left.stdout.strip() == "", "the grading child outlived a killed grader"
+
+
+def test_an_interrupted_check_writes_its_partial_results(tmp_path):
+    import signal
+    import time
+    _springs_with(tmp_path, replace=[("    v_half = v + 0.5 * dt * a\n",
+                                      "    v_half = v + 0.5 * dt * a\n    k = 1.0\n    while k > 0.0:\n"
+                                      "        k = k + 1.0\n")])
+    env = dict(os.environ, PYTHONPATH=str(ROOT), ELASTIC_CACHE_DIR=str(ROOT / ".ti_cache"))
+    proc = subprocess.Popen([sys.executable, "-m", "lessons", "check", "springs", "--solution", "s",
+                             "--functions-only", "--results", "out.json"], cwd=tmp_path, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(12)
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130
+    assert not (tmp_path / "out.json").exists()
+    doc = json.loads((tmp_path / "out.partial.json").read_text())
+    assert doc["complete"] is False and doc["exit_reason"] == "interrupted (SIGINT)"
+    assert doc["experiments"] == [] or all("id" in row for row in doc["experiments"])
+    assert "partial" in out
+
+
+def test_malformed_stage_rows_are_a_failed_claim_never_an_internal_error():
+    from lessons.app.grading import validated_rows
+    good = {"id": "a-claim", "claim": "c", "theory": 1.0, "measured": 1.0, "tolerance": 0.1, "comparison": "rel",
+            "passed": False}
+    assert validated_rows([good], "springs", 1, "t")[0]["passed"] is True   # the verdict is recomputed here
+    for bad in ([], "rows", [1], [dict(good, id=3)], [dict(good, measured="1")], [dict(good, comparison="==")],
+                [good, good], [dict(good, tolerance=True)]):
+        with pytest.raises(ValueError):
+            validated_rows(bad, "springs", 1, "t")

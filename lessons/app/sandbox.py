@@ -1,0 +1,393 @@
+"""What a student's module may do, and the guard that holds it to that in the grading child.
+
+The grader runs student code, which may be wrong, slow or hostile. Three layers keep a solution
+from passing without computing the physics, and from touching the grading:
+
+1. :func:`policy_problems` reads the module (and every module of the solution folder it imports)
+   before anything runs: it may import only numpy, math, cmath, taichi and its own modules, may
+   not name the builtins that reach other code or files (``open``, ``exec``, ``getattr``,
+   ``__import__``, ...), may not read a private or dunder attribute (``x.__globals__``,
+   ``np._core``) nor an attribute that leads to the interpreter, files or processes (``np.sys``,
+   ``.modules``, ``np.save``, ``np.fromfile``, ``ti.tools``), and may not assign to a module's
+   attribute (``np.abs = ...``). Each problem is one line with the file, the line number and what
+   to do instead. ``ti.init``/``ti.reset`` is not a problem but a note: the grader ignores it.
+2. :func:`load_guarded` executes the modules with restricted builtins (no ``open``, ``exec``,
+   ``eval``, ``compile``, ``getattr`` ..., an ``__import__`` that refuses every other module, even
+   one already loaded), and checks that each function the lesson asks for is defined in the
+   solution folder (not an alias of the engine's function).
+3. :class:`Guard` (armed before the student's module is imported, never disarmed in that process):
+   a Python audit hook that ends the process, saying why on the grading channel, when the
+   solution's code (a frame of its files on the stack) tries to write a file, start a process,
+   send a signal, open a socket, load a C library or walk the garbage collector's objects; and a fingerprint of numpy's,
+   math's and taichi's module attributes, compared after every piece of student code ran, so that
+   a patched ``np.max`` or ``ti.init`` is found even when reached through an alias.
+
+The child also ends itself when the grader ends (``PR_SET_PDEATHSIG``), and runs under a CPU-time
+and an address-space limit (``resource``). None of this makes student code safe to run on a
+machine with secrets: the README says to grade in a container or a separate account.
+"""
+from __future__ import annotations
+
+import ast
+import builtins
+import importlib.util
+import os
+import sys
+import types
+from dataclasses import dataclass, field
+from pathlib import Path
+
+ALLOWED_MODULES = ("numpy", "math", "cmath", "taichi")
+BANNED_NAMES = {
+    "__import__": "imports a module by name", "open": "opens a file", "exec": "executes a string as code",
+    "eval": "evaluates a string as code", "compile": "compiles a string to code", "globals": "reads the module's "
+    "globals", "locals": "reads the frame's locals", "vars": "reads an object's namespace", "getattr": "reaches an "
+    "attribute by a computed name", "setattr": "sets an attribute by a computed name", "delattr": "deletes an "
+    "attribute", "breakpoint": "starts a debugger", "input": "reads the terminal", "help": "starts the help system",
+    "exit": "ends the process", "quit": "ends the process", "memoryview": "reaches raw memory",
+    "__builtins__": "reaches the builtins", "__loader__": "reaches the module loader", "__spec__": "reaches the "
+    "module spec", "__file__": "reads where the module lies",
+}
+# attributes that lead to the interpreter, other modules, files or processes (read access refused)
+BANNED_ATTRIBUTES = {
+    "sys", "os", "modules", "builtins", "importlib", "subprocess", "gc", "inspect", "ctypes", "ctypeslib",
+    "f_globals", "f_locals", "f_back", "f_builtins", "f_code", "gi_frame", "cr_frame", "ag_frame", "tb_frame",
+    "tb_next", "load", "save", "savez", "savez_compressed", "savetxt", "loadtxt", "genfromtxt", "fromfile",
+    "tofile", "memmap", "fromregex", "DataSource", "open_memmap", "tools", "imwrite", "imread", "system",
+    "popen", "spawn", "fork", "kill", "environ", "getenv", "putenv", "threading", "multiprocessing", "signal",
+    "socket", "shutil", "pathlib", "io", "pickle", "marshal", "runpy", "platform", "site",
+}
+IGNORED_CALLS = ("init", "reset")   # ti.init / ti.reset: noted, and neutralised in the grading child
+
+
+class PolicyError(Exception):
+    """The solution breaks the rules of what a solution may contain or do (one line)."""
+
+
+@dataclass
+class Reading:
+    """What :func:`policy_problems` found: ``problems`` (each refuses the module) and ``notes``
+    (told to the student, nothing refused), one line each; the solution's files read."""
+    problems: list = field(default_factory=list)
+    notes: list = field(default_factory=list)
+    files: list = field(default_factory=list)
+
+
+def _root_name(node) -> str | None:
+    while isinstance(node, ast.Attribute):
+        node = node.value
+    return node.id if isinstance(node, ast.Name) else None
+
+
+def _sibling(folder: Path, dotted: str) -> Path | None:
+    """The solution folder's own module ``dotted`` (its first part a file in the folder), or None."""
+    first = dotted.split(".")[0]
+    path = folder / f"{first}.py"
+    return path if first and path.is_file() else None
+
+
+def _allowed(dotted: str) -> bool:
+    return dotted.split(".")[0] in ALLOWED_MODULES
+
+
+def _read_one(path: Path, reading: Reading, queue: list) -> None:
+    name = path.name
+    try:
+        text = path.read_text(encoding="utf-8")
+        tree = ast.parse(text, filename=str(path))
+    except SyntaxError as exc:
+        reading.problems.append(f"{name}: line {exc.lineno}: {exc.msg}")
+        return
+    except (OSError, UnicodeDecodeError) as exc:
+        reading.problems.append(f"{name}: cannot be read: {exc}")
+        return
+    folder = path.parent
+    modules: set[str] = set()          # names bound to a module at the top (np, ti, math, helpers)
+
+    def refuse(node, what: str, instead: str) -> None:
+        reading.problems.append(f"{name}: line {getattr(node, 'lineno', '?')}: {what}: {instead}")
+
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                if _allowed(alias.name):
+                    modules.add((alias.asname or alias.name).split(".")[0])
+                elif _sibling(folder, alias.name):
+                    modules.add((alias.asname or alias.name).split(".")[0])
+                    queue.append(_sibling(folder, alias.name))
+                else:
+                    refuse(node, f"imports {alias.name}", "a solution may import only numpy, math, cmath, taichi "
+                           "and its own modules beside it; write the function yourself")
+        elif isinstance(node, ast.ImportFrom):
+            dotted = node.module or ""
+            if node.level:
+                for alias in node.names:
+                    target = _sibling(folder, dotted or alias.name)
+                    if target is None:
+                        refuse(node, f"imports {'.' * node.level}{dotted or alias.name}",
+                               "a relative import must name a module of the solution folder")
+                    else:
+                        queue.append(target)
+            elif _allowed(dotted):
+                for alias in node.names:
+                    if alias.name in IGNORED_CALLS and dotted.split(".")[0] == "taichi":
+                        reading.notes.append(f"{name}: line {node.lineno}: imports taichi's {alias.name}: the grader "
+                                             f"ignores it (the engine starts Taichi: f64, 2 CPU threads)")
+                    if alias.name.startswith("_") or alias.name in BANNED_ATTRIBUTES:
+                        refuse(node, f"imports {dotted}.{alias.name}", "that name leads outside the physics; "
+                               "use numpy's and taichi's public math")
+                    if alias.name == "*":
+                        refuse(node, f"imports * from {dotted}", "import the names you use")
+            elif _sibling(folder, dotted):
+                queue.append(_sibling(folder, dotted))
+            else:
+                refuse(node, f"imports from {dotted}", "a solution may import only numpy, math, cmath, taichi and "
+                       "its own modules beside it; write the function yourself")
+        elif isinstance(node, ast.Name) and node.id in BANNED_NAMES:
+            refuse(node, f"uses {node.id} ({BANNED_NAMES[node.id]})", "a solution computes with its arguments only")
+        elif isinstance(node, ast.Attribute):
+            if node.attr.startswith("_"):
+                refuse(node, f"reaches the private attribute .{node.attr}", "use the public names of numpy, math "
+                       "and taichi")
+            elif node.attr in BANNED_ATTRIBUTES:
+                refuse(node, f"reaches .{node.attr}", "that leads to files, processes or other modules, which a "
+                       "solution does not need")
+            elif isinstance(node.ctx, (ast.Store, ast.Del)) and _root_name(node) in modules:
+                refuse(node, f"changes {ast.unparse(node)}", "a solution may not change numpy, math, taichi or "
+                       "its modules; compute with local names")
+        elif isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr in IGNORED_CALLS:
+            if _root_name(node.func) in modules:
+                reading.notes.append(f"{name}: line {node.lineno}: calls {ast.unparse(node.func)}(...): the grader "
+                                     f"ignores it (the engine starts Taichi itself: f64, 2 CPU threads); remove it")
+        elif isinstance(node, (ast.Global, ast.Nonlocal)):
+            pass
+    for node in ast.walk(tree):   # a module bound to another name and changed through it
+        if isinstance(node, ast.Assign) and isinstance(node.value, ast.Name) and node.value.id in modules:
+            refuse(node, f"binds the module {node.value.id} to another name", "use the module by its own name")
+
+
+def policy_problems(path: Path) -> Reading:
+    """Read the student's module ``path`` and every module of its folder that it imports (no code
+    runs): the problems that refuse it and the notes, one line each (see the module docstring)."""
+    reading = Reading()
+    queue, seen = [Path(path)], set()
+    while queue:
+        p = queue.pop(0).resolve()
+        if p in seen:
+            continue
+        seen.add(p)
+        reading.files.append(p)
+        _read_one(p, reading, queue)
+    return reading
+
+
+# ------------------------------------------------------------------ loading under restricted builtins
+
+_REMOVED_BUILTINS = {n for n in BANNED_NAMES if hasattr(builtins, n)} - {"__import__"}
+
+
+class _Loader:
+    """Imports the solution's modules with restricted builtins; records the files it executed (in
+    ``files``, the guard's set when given)."""
+
+    def __init__(self, folder: Path, files: set | None = None):
+        self.folder = Path(folder).resolve()
+        self.loaded: dict[str, types.ModuleType] = {}
+        self.files: set[str] = files if files is not None else set()
+        safe = {k: v for k, v in vars(builtins).items() if k not in _REMOVED_BUILTINS}
+        safe["__import__"] = self._import
+        self.builtins = safe
+
+    def _import(self, name, globals=None, locals=None, fromlist=(), level=0):
+        if level == 0 and _allowed(name):
+            return builtins.__import__(name, globals, locals, fromlist, 0)
+        target = name if level == 0 else (name or (fromlist[0] if fromlist else ""))
+        sibling = _sibling(self.folder, target) if target else None
+        if sibling is None and level and not name:
+            # 'from . import a, b': each name a module of the folder
+            mods = {n: self.load(_sibling(self.folder, n)) for n in fromlist if _sibling(self.folder, n)}
+            return types.SimpleNamespace(**mods)
+        if sibling is None:
+            raise PolicyError(f"imports {name or target}: a solution may import only numpy, math, cmath, taichi and "
+                              f"its own modules")
+        module = self.load(sibling)
+        return module
+
+    def load(self, path: Path) -> types.ModuleType:
+        path = Path(path).resolve()
+        key = str(path)
+        if key in self.loaded:
+            return self.loaded[key]
+        spec = importlib.util.spec_from_file_location(f"student_{path.stem}", path)
+        module = importlib.util.module_from_spec(spec)
+        module.__dict__["__builtins__"] = self.builtins
+        self.loaded[key] = module
+        self.files.add(key)
+        self.files.add(str(path))
+        spec.loader.exec_module(module)
+        return module
+
+
+def function_file(func) -> str | None:
+    """The file a function (a plain one or a Taichi function) was written in, or None."""
+    inner = getattr(func, "__wrapped__", None) or getattr(func, "func", None) or func
+    code = getattr(inner, "__code__", None)
+    return str(Path(code.co_filename).resolve()) if code is not None else None
+
+
+def load_guarded(path: Path, files: set | None = None):
+    """Import the student's module ``path`` with restricted builtins; returns (module, files): the
+    solution's files it executed (added to ``files`` as they load, when given)."""
+    loader = _Loader(Path(path).parent, files)
+    module = loader.load(path)
+    return module, loader.files
+
+
+def own_function(module, name: str, files: set) -> str:
+    """'' when ``module.name`` is a function written in the solution's files, else why not."""
+    func = vars(module).get(name)
+    if func is None:
+        return f"{name}: not defined in the module"
+    where = function_file(func)
+    if where is None:
+        return f"{name}: is a {type(func).__name__}, not a function written in the solution"
+    if where not in files:
+        return f"{name}: is defined in {where}, not in the solution; write it yourself"
+    return ""
+
+
+# ------------------------------------------------------------------ the guard of the grading child
+
+# audit events refused while the solution's own code runs (a frame of its files on the stack: the
+# engine's set-up may start a process, load a C library or set an environment variable)
+REFUSED_EVENTS = {
+    "subprocess.Popen": "starts a process", "os.system": "starts a process", "os.exec": "replaces the process",
+    "os.posix_spawn": "starts a process", "os.spawn": "starts a process", "os.fork": "forks the process",
+    "os.forkpty": "forks the process", "pty.spawn": "starts a process", "os.kill": "sends a signal",
+    "os.killpg": "sends a signal", "signal.pthread_kill": "sends a signal", "socket.__new__": "opens a socket",
+    "socket.connect": "opens a connection", "socket.bind": "opens a socket", "ctypes.dlopen": "loads a C library",
+    "ctypes.dlsym": "reaches a C function", "ctypes.addressof": "reaches raw memory", "gc.get_objects": "walks the "
+    "interpreter's objects", "gc.get_referrers": "walks the interpreter's objects", "gc.get_referents": "walks the "
+    "interpreter's objects", "sys._current_frames": "reaches other threads' frames", "os.putenv": "changes the "
+    "environment", "os.unsetenv": "changes the environment", "os.chdir": "changes the working directory",
+    "sys.addaudithook": "adds an audit hook", "os.remove": "removes a file", "os.rmdir": "removes a directory",
+    "shutil.rmtree": "removes a directory", "os.truncate": "truncates a file", "os.chmod": "changes a file's mode",
+    "os.symlink": "creates a link", "os.link": "creates a link", "webbrowser.open": "opens a browser",
+    "urllib.Request": "opens a connection", "mmap.__new__": "maps memory", "os.chown": "changes a file's owner",
+}
+_WRITE_FLAGS = os.O_WRONLY | os.O_RDWR | os.O_CREAT | os.O_APPEND | os.O_TRUNC
+WATCHED_MODULES = ("numpy", "numpy.linalg", "math", "cmath", "taichi", "taichi.math", "builtins")
+
+
+def _fingerprint() -> dict:
+    out = {}
+    for name in WATCHED_MODULES:
+        module = sys.modules.get(name)
+        if module is not None:
+            out[name] = {k: id(v) for k, v in vars(module).items() if not k.startswith("__")}
+    return out
+
+
+class Guard:
+    """The grading child's guard (see the module docstring). ``report(text)`` writes the reason on
+    the grading channel; the process then ends with exit code 3."""
+
+    EXIT = 3
+
+    def __init__(self, report, writable: list):
+        self.report = report
+        self.files: set[str] = set()   # the solution's files (load_guarded adds each as it loads it)
+        self.writable = [str(Path(p).resolve()) for p in writable if p]
+        self.armed = False
+        self.print_before = None
+        self.notes: list[str] = []
+        self.snapshot: dict = {}
+
+    def arm(self) -> None:
+        import taichi
+        self.snapshot = _fingerprint()
+        taichi.init = self._ignored("ti.init")
+        taichi.reset = self._ignored("ti.reset")
+        self.snapshot = _fingerprint()
+        if not self.armed:
+            sys.addaudithook(self._hook)
+        self.armed = True
+
+    def _ignored(self, what: str):
+        notes = self.notes
+
+        def ignored(*args, **kwargs):
+            notes.append(f"{what}(...) was called and ignored: the engine runs Taichi as it started it")
+        return ignored
+
+    def refuse(self, why: str) -> None:
+        try:
+            self.report(why)
+        finally:
+            os._exit(self.EXIT)
+
+    def _may_write(self, path) -> bool:
+        try:
+            target = os.path.realpath(os.fsdecode(path)) if not isinstance(path, int) else None
+        except (TypeError, ValueError):
+            return False
+        return target is not None and any(target == w or target.startswith(w + os.sep) for w in self.writable)
+
+    def _hook(self, event: str, args) -> None:
+        if not self.armed or event == "sys._getframe":
+            return
+        if event not in REFUSED_EVENTS and event not in ("open", "os.rename", "os.replace", "os.mkdir") and \
+                not event.startswith(("os.exec", "os.spawn")):
+            return
+        if not self._solution_running():   # the engine's or Taichi's own work
+            return
+        if event == "open":
+            path, mode, flags = (tuple(args) + (None, None, None))[:3]
+            writing = (isinstance(mode, str) and any(c in mode for c in "wax+")) or \
+                      (isinstance(flags, int) and flags & _WRITE_FLAGS and not isinstance(mode, str))
+            if writing and not self._may_write(path):
+                self.refuse(f"the solution tried to write {path!r}: a solution may not write files")
+        elif event in ("os.rename", "os.replace", "os.mkdir"):
+            self.refuse(f"the solution tried to {event[3:]} {tuple(args)[0]!r}: a solution may not touch files")
+        else:
+            self.refuse(f"the solution {REFUSED_EVENTS.get(event, 'starts a process')} ({event}): a solution "
+                        f"computes its functions and nothing else")
+
+    def _solution_running(self) -> bool:
+        """Whether a frame of the solution's files is on the stack."""
+        frame = sys._getframe(2)
+        while frame is not None:
+            if frame.f_code.co_filename in self.files:
+                return True
+            frame = frame.f_back
+        return False
+
+    def tampered(self) -> str:
+        """'' when numpy, math, taichi and the builtins are as they were when armed, else what changed."""
+        now = _fingerprint()
+        for module, before in self.snapshot.items():
+            after = now.get(module, {})
+            for key, ident in before.items():
+                if after.get(key) != ident:
+                    return f"the solution changed {module}.{key}: a solution may not change the libraries"
+        return ""
+
+
+def limit_child(grader_pid: int, cpu_seconds: float, memory_bytes: int | None) -> None:
+    """In the grading child: end with the grader (PR_SET_PDEATHSIG, Linux; and at once if the
+    grader ``grader_pid`` is already gone) and cap its CPU time and address space."""
+    import resource
+    import signal
+    try:
+        import ctypes
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, signal.SIGKILL)   # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+    if os.getppid() != grader_pid:   # the grader is already gone
+        os._exit(1)
+    if cpu_seconds and cpu_seconds > 0:
+        soft = int(cpu_seconds) + 1
+        resource.setrlimit(resource.RLIMIT_CPU, (soft, soft + 5))
+    if memory_bytes:
+        resource.setrlimit(resource.RLIMIT_AS, (memory_bytes, memory_bytes))
