@@ -134,6 +134,8 @@ BROKEN = [
     ("shape", "    return 0.5 * c * strain * strain\n", "ex-spring-energy-runs",
      "spring_energy: the Taichi compiler crashed on it (signal 6): check that it returns float"),
     ("nan", "    return 0.5 * c * strain * strain\n", "ex-spring-energy", "returns NaN or inf"),
+    ("vec3-only", "    v_new = v + dt * a\n", "ex-symplectic-euler-runs",
+     "symplectic_euler: the Taichi compiler crashed on it (signal 6)"),
 ]
 
 
@@ -146,7 +148,9 @@ def test_a_broken_function_is_one_line_that_names_it(tmp_path, kind, line, caugh
     new = {"syntax": "def spring_energy(d, L, c\n",
            "raises": "    v_new = v + dt * a\n    v_new = undefined_name\n",
            "shape": "    return ti.math.vec3(0.5 * c * strain * strain)\n",
-           "nan": "    return 0.5 * c * strain * strain * (d.norm() - d.norm()) / (d.norm() - d.norm())\n"}[kind]
+           "nan": "    return 0.5 * c * strain * strain * (d.norm() - d.norm()) / (d.norm() - d.norm())\n",
+           # results declared as vectors: works for vec3 states, crashes the compiler on floats
+           "vec3-only": "    v_new = ti.math.vec3(0.0)\n    v_new = v + dt * a\n"}[kind]
     path.write_text(text.replace(line, new, 1))
     r = lessons_cli("check", "springs", "--solution", "s", "--functions-only", "--results", "out.json", cwd=tmp_path)
     assert r.returncode == 1
