@@ -22,6 +22,7 @@ passes, 1 when one fails, 2 for bad input.
 import ast
 import math
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -71,9 +72,18 @@ def _experiment(row: dict) -> Experiment:
                       row.get("unit", ""), id=row["id"], reason=row.get("reason", ""))
 
 
+_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
+
+
+def printable(text: str) -> str:
+    """Text from the student's process with its control characters escaped (an exception's message
+    may carry terminal escapes that would redraw the table)."""
+    return _CONTROL.sub(lambda m: repr(m.group())[1:-1], str(text))
+
+
 def _failure(lesson_id: str, stage: int, id: str, claim: str, reason: str) -> dict:
     """A row for a check that could not run (the student's code did not import, is empty, ...)."""
-    e = Experiment(claim, 1.0, 0.0, 0.0, ">=", id=id, reason=reason)
+    e = Experiment(claim, 1.0, 0.0, 0.0, ">=", id=id, reason=printable(reason))
     return e.to_dict(lesson_id, stage, "your functions" if stage == UNIT_STAGE else "")
 
 
@@ -205,7 +215,7 @@ class RemoteFunction:
         def call(*inputs):
             answer = self.grader.call(self.name, spec, list(args), list(inputs))
             if "error" in answer:
-                raise StudentError(str(answer["error"])[:4000])
+                raise StudentError(printable(str(answer["error"])[:4000]))
             out = answer.get("ok")
             if answer.get("tuple") and isinstance(out, list) and all(hasattr(o, "shape") for o in out):
                 return tuple(o.astype(float) for o in out)
@@ -239,9 +249,9 @@ def validated_rows(rows, lesson_id: str, index: int, title: str) -> list[dict]:
         seen.add(row["id"])
         num = lambda v: math.nan if v is None else float(v)  # noqa: E731
         try:
-            e = Experiment(row["claim"][:2000], num(row["theory"]), num(row["measured"]), float(row["tolerance"]),
-                           row["comparison"], str(row.get("unit", ""))[:40], id=row["id"],
-                           reason=str(row.get("reason", ""))[:2000])
+            e = Experiment(printable(row["claim"][:2000]), num(row["theory"]), num(row["measured"]),
+                           float(row["tolerance"]), row["comparison"], printable(str(row.get("unit", ""))[:40]),
+                           id=row["id"], reason=printable(str(row.get("reason", ""))[:2000]))
         except ValueError as exc:
             raise ValueError(f"row {k}: {exc}") from None
         d = e.to_dict(lesson_id, index, title)
