@@ -199,9 +199,13 @@ def _main_parser(lesson_ids: list[str]) -> argparse.ArgumentParser:
                        "                    write a student's template: the lesson's formulas to write\n"
                        "  check LESSON|all --solution DIR\n"
                        "                    grade a student's functions with the lesson's own experiments\n"
-                       "                    (see 'python -m lessons check --help')\n\nLessons: " + ", ".join(lesson_ids),
+                       "                    (see 'python -m lessons check --help')\n"
+                       "  grade ROSTER [LESSON|all]\n"
+                       "                    grade a class in parallel (Dask): gradebook CSV, Gradescope files\n"
+                       "                    (see 'python -m lessons grade --help')\n\nLessons: " + ", ".join(lesson_ids),
                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("command", choices=["list", "run", "exercise", "check"], help="list, run, exercise or check")
+    p.add_argument("command", choices=["list", "run", "exercise", "check", "grade"],
+                   help="list, run, exercise, check or grade")
     p.add_argument("--version", action="version", version=f"%(prog)s {_version()}",
                    help="print the package version and exit")
     return p

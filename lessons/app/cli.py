@@ -401,7 +401,8 @@ def main(argv: list[str] | None = None, restore_signals: bool = True) -> int:
         lessons_ = registry.all_lessons()
         ids = [l.id for l in lessons_]
         if not argv:
-            raise UsageError("a command is required: list, run, exercise or check (see 'python -m lessons --help')")
+            raise UsageError("a command is required: list, run, exercise, check or grade (see 'python -m lessons "
+                             "--help')")
         if argv[0] in ("-h", "--help", "--version"):
             _main_parser(ids).parse_args(argv[:1])
             return EXIT_OK
@@ -418,7 +419,10 @@ def main(argv: list[str] | None = None, restore_signals: bool = True) -> int:
         if command == "check":
             from .grading import check
             return check(rest, sys.stdout)
-        raise UsageError(f"command must be 'list', 'run', 'exercise' or 'check' (got {command!r}); see "
+        if command == "grade":
+            from .roster import grade
+            return grade(rest, sys.stdout, sys.stderr)
+        raise UsageError(f"command must be 'list', 'run', 'exercise', 'check' or 'grade' (got {command!r}); see "
                          f"'python -m lessons --help'")
     except SystemExit as exc:  # --help, --version
         return int(exc.code or 0)

@@ -325,9 +325,9 @@ class Grader:
         try:
             ast.parse(self.path.read_text(encoding="utf-8"), filename=str(self.path))
         except SyntaxError as exc:
-            return f"{self.path}: line {exc.lineno}: {exc.msg}"
+            return f"{self.path.name}: line {exc.lineno}: {exc.msg}"
         except (OSError, UnicodeDecodeError) as exc:
-            return f"{self.path}: cannot be read: {exc}"
+            return f"{self.path.name}: cannot be read: {exc}"
         return ""
 
     # ---------------------------------------------------------------- the function checks
