@@ -24,7 +24,7 @@ The check runs each function on its own first (against the lesson's formula, and
 Hessian against finite differences), then the lesson's own experiments with your functions in
 place of the engine's: the engine's kernels are compiled around them.
 
-{kinds}
+{kinds}{labels}
 """
 import numpy as np
 import taichi as ti
@@ -56,7 +56,11 @@ def template_text(lesson, folder: str) -> str:
     tasks = exercise_module(lesson).TASKS
     kinds = [TI_FUNC_RULES] if any(t.kind == TI_FUNC for t in tasks) else []
     kinds += [NUMPY_RULES] if any(t.kind == NUMPY for t in tasks) else []
-    parts = [TEMPLATE_HEAD.format(title=lesson.title, id=lesson.id, folder=folder, kinds="\n\n".join(kinds))]
+    table = getattr(exercise_module(lesson), "LABELS", {})
+    labels = ("\n\nThe equations the functions below cite:\n" + "\n".join(
+        textwrap.fill(f"({k}) {v}", width=100, subsequent_indent="     ") for k, v in table.items())) if table else ""
+    parts = [TEMPLATE_HEAD.format(title=lesson.title, id=lesson.id, folder=folder, kinds="\n\n".join(kinds),
+                                  labels=labels)]
     for t in tasks:
         decorator = "@ti.func\n" if t.kind == TI_FUNC else ""
         doc = t.doc.rstrip() + (f"\n\nReturns: {t.returns}" if t.returns else "")

@@ -183,6 +183,13 @@ def install_gradient(func) -> None:
     substitute(Hg.dihedral_angle_gradient, func)
 
 
+LABELS = {   # the equations this exercise cites, defined in its template (what, not how)
+    "A1": "theta, the signed angle between the wings' normals N0 = e x a0 and N1 = a1 x e, turning about e",
+    "G1": "the gradient of (A1) at a wing vertex",
+    "G2": "where each wing's foot (the nearest point of the edge's line) lies along the edge",
+    "G3": "the gradient of (A1) at the two hinge vertices, from (G1) and (G2)",
+}
+
 TASKS = [
     Task("dihedral_angle", TI_FUNC, "e, a0, a1", """\
 The signed dihedral angle theta of one hinge (A1), in rad, in (-pi, pi]; zero when flat.

@@ -171,6 +171,12 @@ def install_velocity(func) -> None:
     substitute(I.step_velocity, step_velocity)
 
 
+LABELS = {   # the equations this exercise cites, defined in its template (what, not how)
+    "IP": "Phi(x) = |x - x_n - dt v_n|^2_M/(2 dt^2) + W(x) - (gravity's work), backward Euler's incremental "
+          "potential: the step is its minimum",
+    "N1": "one Newton step on (IP): A dx = -grad Phi, with A the Hessian of Phi",
+}
+
 TASKS = [
     Task("newton_residual", TI_FUNC, "f, m, x, x_n, v_n, dt", """\
 The right-hand side of backward Euler's Newton system at one free vertex: -grad Phi, in N

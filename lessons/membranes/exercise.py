@@ -166,6 +166,11 @@ def install_stress(func) -> None:
     substitute(Mb.baraff_witkin_stress, func)
 
 
+LABELS = {   # the equations this exercise cites, defined in its template (what, not how)
+    "F1": "F = [x1 - x0, x2 - x0] Dm^-1 = [w_u, w_v], a triangle's deformation gradient",
+    "M2": "W = A [k_s/2 ((|w_u| - 1)^2 + (|w_v| - 1)^2) + k_h/2 (w_u . w_v)^2], Baraff and Witkin's energy",
+}
+
 TASKS = [
     Task("deformation_gradient", TI_FUNC, "d1, d2, Dinv", """\
 The deformation gradient of one triangle (F1): returns its two columns (w_u, w_v), two

@@ -149,6 +149,11 @@ def install_rod_force(func) -> None:
     substitute(axial.axial_force, _adapter(func))
 
 
+LABELS = {   # the equations this exercise cites, defined in its template (what, not how)
+    "R1": "the force on node i along the rod: minus the derivative by x_i of the rod's energy, the sum over its "
+          "segments of 1/2 E (l/h - 1)^2 h (l a segment's length, h its rest length)",
+}
+
 TASKS = [
     Task("rod_force", TI_FUNC, "x_left, x, x_right, h_left, h_right, E_left, E_right", """\
 The force on one node of the rod along its axis (R1), in N (a float).

@@ -419,6 +419,15 @@ def finish_install() -> None:
 
 ALL_STAGES = (1, 2, 3, 4, 5)
 
+LABELS = {   # the equations this exercise cites, defined in its template (what, not how)
+    "S1": "W = 1/2 c (l/L - 1)^2, one spring's energy (c = k L; l = |x_i - x_j|, L the rest length)",
+    "S2": "the force on the spring's end i: minus the gradient of (S1) with respect to x_i",
+    "S3": "the Hessian block of (S1): its second derivative with respect to x_i",
+    "E1": "forward Euler: position and velocity both move with the old state",
+    "E2": "symplectic Euler: the velocity first, with the acceleration at x; the position then with the new velocity",
+    "E3": "velocity Verlet: half a kick, a whole drift, and half a kick with the acceleration at the new position",
+}
+
 TASKS = [
     Task("spring_energy", TI_FUNC, "d, L, c", """\
 The elastic energy of one spring (S1), in J.

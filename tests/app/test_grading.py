@@ -337,3 +337,13 @@ def test_malformed_stage_rows_are_a_failed_claim_never_an_internal_error():
                 [good, good], [dict(good, tolerance=True)]):
         with pytest.raises(ValueError):
             validated_rows(bad, "springs", 1, "t")
+
+
+def test_every_equation_a_template_cites_is_defined_in_it(tmp_path):
+    import re
+    assert lessons_cli("exercise", "all", "ex", cwd=tmp_path).returncode == 0
+    for package in PACKAGES.values():
+        text = (tmp_path / "ex" / f"{package}.py").read_text()
+        cited = set(re.findall(r"\(([A-Z]{1,2}\d?)\)", text)) - {"E", "N", "X", "P", "D"}
+        defined = set(re.findall(r"^\(([A-Z]{1,2}\d?)\) ", text, flags=re.M))
+        assert cited <= defined, (package, cited - defined)
