@@ -489,6 +489,15 @@ class Grader:
                 blame = f"likely from your {' and '.join(suspects)}"
                 r["reason"] = f"{r['reason']} ({blame})" if r.get("reason") else blame
 
+def _end_with_parent(signal_number: int) -> None:
+    """Ask Linux to send ``signal_number`` to this process when its parent ends (a no-op elsewhere)."""
+    try:
+        import ctypes
+        ctypes.CDLL(None).prctl(1, signal_number)   # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
 def _results_target(text: str, solution: Path):
     """``--results PATH`` checked and its temporary file created before any grading (bad input,
     exit 2, when it cannot be written or would replace a file of the student's solution)."""
@@ -535,6 +544,8 @@ def check(argv: list[str], out=sys.stdout) -> int:
         if bad:
             raise UsageError(f"--stage must be in 1..{len(lesson.stages)} for {lesson.id} (got {bad[0]})")
     target = _results_target(args.results, solution) if args.results is not None else None
+    if os.environ.get("ELASTIC_GRADE_TASK") == "1":   # a task of 'grade': end (cleanly) with the worker
+        _end_with_parent(signal_number=15)
     from engine import runtime
     runtime.init()   # the checks' own references run here; the student's code only in the grading child
     started = time.time()
@@ -560,21 +571,25 @@ def check(argv: list[str], out=sys.stdout) -> int:
         exit_code = 1 if failed else 0
         out.write(f"\n{len(rows) - failed} of {len(rows)} claims passed"
                   + (f"; {failed} failed (see the FAIL lines above)" if failed else "") + "\n")
-        return exit_code
-    except (KeyboardInterrupt, Terminated) as exc:
+    except (KeyboardInterrupt, Terminated) as exc:   # the child is stopped already (Grader.close)
         signum = getattr(exc, "signum", 2)
-        exit_code, reason = 128 + signum, ("interrupted (SIGINT)" if signum == 2 else f"terminated (signal {signum})")
-        raise
-    finally:
-        if target is not None:
-            doc = results_document(rows, complete=complete, exit_code=exit_code, exit_reason=reason, notes=notes,
-                                   elapsed_s=round(time.time() - started, 3), **meta)
-            try:
-                target.write_bytes(encode(doc))
-                where = target.commit(complete)
-                out.write(f"results: {where}" + ("" if complete else " (partial: the check did not finish)") + "\n")
-            except OSError as exc:
-                target.discard()
-                out.write(f"results: could not be written ({exc}); nothing was written\n")
-        elif not complete:
-            out.write("no --results was given: nothing was written\n")
+        exit_code = 128 + signum
+        reason = {2: "interrupted (SIGINT)", 15: "terminated (SIGTERM)", 1: "hung up (SIGHUP)"}.get(
+            signum, f"signal {signum}")
+    written = ""
+    if target is not None:
+        doc = results_document(rows, complete=complete, exit_code=exit_code, exit_reason=reason, notes=notes,
+                               elapsed_s=round(time.time() - started, 3), **meta)
+        try:
+            target.write_bytes(encode(doc))
+            written = str(target.commit(complete))
+            out.write(f"results: {written}" + ("" if complete else " (partial: the check did not finish)") + "\n")
+        except OSError as exc:
+            target.discard()
+            out.write(f"results: could not be written ({exc.strerror or exc}); nothing was written\n")
+            exit_code = exit_code or 1
+    if not complete:
+        sys.stderr.write(f"\n{reason}: " + (f"the claims graded so far are in {written}, marked partial\n" if written
+                                             else "nothing was written (no --results)\n" if target is None
+                                             else "nothing was written\n"))
+    return exit_code

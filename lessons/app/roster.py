@@ -38,6 +38,7 @@ import time
 from pathlib import Path
 
 from .._exercise import module_file
+from .._framework import Terminated
 from .arguments import UsageError, _Parser
 from .exercises import lessons_with_exercises
 from .grading import DEFAULT_MEMORY_GB, DEFAULT_TIME_LIMIT_S, PROJECT_ROOT
@@ -102,7 +103,7 @@ def grade_task(student: str, lesson_id: str, files: dict, options: list, hard_li
         for name, text in files.items():
             (folder / name).write_text(text, encoding="utf-8")
         out = Path(work) / "results.json"
-        env = dict(os.environ)
+        env = dict(os.environ, ELASTIC_GRADE_TASK="1")   # the check ends with this worker
         env["PYTHONPATH"] = os.pathsep.join([str(PROJECT_ROOT)] + [p for p in [env.get("PYTHONPATH")] if p])
         proc = subprocess.Popen([sys.executable, "-m", "lessons", "check", lesson_id, "--solution", str(folder),
                                  "--results", str(out), *options], cwd=work, env=env, stdin=subprocess.DEVNULL,
@@ -309,6 +310,7 @@ def grade(argv: list[str], out=sys.stdout, err=sys.stderr) -> int:
         n_items = lambda lesson: len(lesson.stages) + 8  # noqa: E731 - functions and stages, generously
         from tqdm import tqdm
         client, cluster = _client(args)
+        done = 0
         try:
             futures = {client.submit(grade_task, s, lesson.id, files, options,
                                      args.time_limit * (n_items(lesson) + 2) + 120, pure=False, retries=0):
@@ -326,9 +328,16 @@ def grade(argv: list[str], out=sys.stdout, err=sys.stderr) -> int:
                 if result["status"] == "graded":
                     new_state.setdefault(s, {})[lesson_id] = {"hash": digest, "result": result}
                     _write_atomic(outdir / STATE, json.dumps(new_state))
+                done += 1
                 bar.update(1)
                 bar.set_postfix_str(f"{s} {lesson_id}")
             bar.close()
+        except (KeyboardInterrupt, Terminated) as exc:
+            signum = getattr(exc, "signum", signal.SIGINT)
+            err.write(f"\n{'interrupted (SIGINT)' if signum == signal.SIGINT else f'signal {signum}'}: {done} of "
+                      f"{len(todo)} graded are kept in {outdir / STATE}; the gradebook is not written. Run the same "
+                      f"command again to grade the rest.\n")
+            return 128 + int(signum)
         finally:
             client.close()
             if cluster is not None:

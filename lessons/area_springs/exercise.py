@@ -30,9 +30,12 @@ def _meshes():
             "tets": (np.array(tet.vertices, float), np.array(tet.edges), tet_cells)}
 
 
-def _sizes(X, cells, signed=False, flat=False) -> np.ndarray:
-    """Each element's area (triangles) or volume (tets); ``signed``/``flat``: the mistakes named."""
+def _sizes(X, cells, signed=False, flat=False, right_angle=False) -> np.ndarray:
+    """Each element's area (triangles) or volume (tets); ``signed``/``flat``/``right_angle``: the
+    mistakes named."""
     P = X[cells]
+    if right_angle and cells.shape[1] == 3:
+        return 0.5 * np.linalg.norm(P[:, 1] - P[:, 0], axis=1) * np.linalg.norm(P[:, 2] - P[:, 0], axis=1)
     if flat:
         P = P.copy()
         P[..., 2] = 0.0
@@ -112,6 +115,9 @@ def _verdict(kind, got, ref, X, edges, cells, id, claim):
                       "(x2 - x0)|/2 in 3D")
         elif kind == "triangles" and matches(got, _shares(X, edges, cells, signed=True, flat=True)):
             reason = "edge_measure's triangle areas are the signed areas in the x-y plane: use |(x1 - x0) x (x2 - x0)|/2 in 3D"
+        elif kind == "triangles" and matches(got, _shares(X, edges, cells, right_angle=True)):
+            reason = ("edge_measure takes a triangle's area as |x1 - x0| |x2 - x0|/2, true only for a right angle at "
+                      "corner 0: use |(x1 - x0) x (x2 - x0)|/2")
         elif np.allclose(np.sort(got), np.sort(ref), rtol=1e-12, atol=0):
             reason = ("edge_measure returns the right values in another order than the rows of `edges`: the "
                       "result must follow the edges as given (any order, either way round)")
@@ -119,7 +125,8 @@ def _verdict(kind, got, ref, X, edges, cells, id, claim):
             reason = (f"edge_measure is {r} the right share: each element gives {share} to each of its edges, "
                       f"so the shares sum to the mesh's {whole}")
         elif abs(total - 1.0) > 1e-9:
-            reason = f"edge_measure sums to {total:.4g} times the mesh's {whole}; the shares must add up to it"
+            reason = (f"edge_measure sums to {total:.4g} times the mesh's {whole}; the shares must add up to it"
+                      + ("; out[rows] += v adds a repeated row once: np.add.at adds every one" if total < 1 else ""))
         else:
             reason = (f"edge_measure gives edge {i} {got[i]:.6g} {unit} instead of {ref[i]:.6g} {unit}: "
                       f"is each element's {share} added to the right edges?")

@@ -71,16 +71,19 @@ def _angle_np(e, a0, a1, unit_e=True):
     return np.arctan2(np.einsum("ij,ij->i", axis, np.cross(N0, N1)), np.einsum("ij,ij->i", N0, N1))
 
 
-def _gradient_np(e, a0, a1, foot=lambda t: t, edge_factor=True):
+def _gradient_np(e, a0, a1, foot=lambda t, s: t, edge_factor=True, swap_weights=False, w1_sign=1.0):
     """(G1)-(G3) in numpy, (n, 4, 3); ``foot`` maps the feet's positions t along the edge and
-    ``edge_factor`` False drops |e| from the wings' gradient (the mistakes named)."""
+    ``edge_factor`` False drops |e| from the wings' gradient, ``swap_weights`` gives v1 the weight
+    1 - t, ``w1_sign`` -1 flips w1's gradient (the mistakes named)."""
     s = np.linalg.norm(e, axis=1)[:, None]
     N0, N1 = np.cross(e, a0), np.cross(a1, e)
     k = s if edge_factor else 1.0
     g_w0 = -k * N0 / np.einsum("ij,ij->i", N0, N0)[:, None]
-    g_w1 = -k * N1 / np.einsum("ij,ij->i", N1, N1)[:, None]
-    t0 = foot(np.einsum("ij,ij->i", a0, e)[:, None] / s ** 2)
-    t1 = foot(np.einsum("ij,ij->i", a1, e)[:, None] / s ** 2)
+    g_w1 = -w1_sign * k * N1 / np.einsum("ij,ij->i", N1, N1)[:, None]
+    t0 = foot(np.einsum("ij,ij->i", a0, e)[:, None] / s ** 2, s)
+    t1 = foot(np.einsum("ij,ij->i", a1, e)[:, None] / s ** 2, s)
+    if swap_weights:
+        t0, t1 = 1.0 - t0, 1.0 - t1
     g_v1 = -t0 * g_w0 - t1 * g_w1
     g_v0 = -(1.0 - t0) * g_w0 - (1.0 - t1) * g_w1
     return np.stack([g_v0, g_v1, g_w0, g_w1], axis=1)
@@ -108,6 +111,9 @@ def check_angle(student) -> list:
                       "(about e, from N0 to N1) and negative the other")
         elif deviation(got, np.abs(ref), scale=np.pi) <= 1e-9:
             reason = "dihedral_angle loses the sign: it returns |theta|; use atan2 of the signed sine and the cosine"
+        elif matches(got, np.arcsin(np.clip(np.sin(ref), -1, 1)), scale=np.pi, tol=1e-9):
+            reason = ("dihedral_angle uses asin: it cannot tell theta from pi - theta beyond pi/2; use atan2 of the "
+                      "sine and the cosine")
         elif matches(got, _angle_np(*_frames(P), unit_e=False), scale=np.pi):
             reason = ("dihedral_angle's sine is not divided by |e|: e . (N0 x N1) grows with the edge's length, so "
                       "the angle changes when the hinge is scaled; use e/|e|")
@@ -146,10 +152,17 @@ def check_gradient(student) -> list:
             (_gradient_np(*frames, edge_factor=False),
              "is missing the factor |e| in the wings' gradient: dtheta/dx_w0 = -|e| N0/|N0|^2 = -n0/h0, with "
              "h0 = |N0|/|e| the wing's height"),
-            (_gradient_np(*frames, foot=np.abs), "takes the feet's positions along the edge unsigned: t = a.e/|e|^2 "
-                                                 "is negative when a wing's foot lies before v0"),
-            (_gradient_np(*frames, foot=lambda t: np.clip(t, 0.0, 1.0)),
+            (_gradient_np(*frames, foot=lambda t, s: np.abs(t)), "takes the feet's positions along the edge "
+                                                                 "unsigned: t = a.e/|e|^2 is negative when a wing's "
+                                                                 "foot lies before v0"),
+            (_gradient_np(*frames, foot=lambda t, s: np.clip(t, 0.0, 1.0)),
              "clips the feet's positions to the edge: t = a.e/|e|^2 may lie outside [0, 1]"),
+            (_gradient_np(*frames, foot=lambda t, s: t * s), "measures the feet's positions in metres, a.e/|e|: "
+                                                             "the weight is the fraction t = a.e/|e|^2 of the edge"),
+            (_gradient_np(*frames, swap_weights=True), "swaps the hinge vertices' weights: with t = a.e/|e|^2 "
+                                                       "measured from v0, v1 gets t and v0 gets 1 - t"),
+            (_gradient_np(*frames, w1_sign=-1.0), "has the wrong sign on w1's gradient: -|e| N1/|N1|^2 with "
+                                                  "N1 = a1 x e, the same form as w0's"),
         ] if matches(got, wrong, scale, tol=1e-6)), "")
         wrong_only_outside = set(np.flatnonzero(np.abs(got - ref).reshape(len(P), -1).max(axis=1) > tol * scale)) \
             <= set(outside)

@@ -142,8 +142,10 @@ def check_velocity(student) -> list:
             reason = "step_velocity has the wrong sign: v+ = (x+ - x_n)/dt"
         elif matches(got, ref / dt, scale):
             reason = "step_velocity divides by dt^2: v+ = (x+ - x_n)/dt"
-        elif matches(got, ref * dt, scale):
-            reason = "step_velocity multiplies by dt: v+ = (x+ - x_n)/dt"
+        elif matches(got, ref * dt * dt, scale):
+            reason = "step_velocity multiplies by dt instead of dividing: v+ = (x+ - x_n)/dt"
+        elif r:
+            reason = f"step_velocity is {r} (x+ - x_n)/dt"
         else:
             reason = f"step_velocity is not (x+ - x_n)/dt (deviation {dev:.2g})"
     return [agreement("step_velocity = (x+ - x_n)/dt, 48 random vertices, dt from 1e-5 to 1 s", "ex-step-velocity",

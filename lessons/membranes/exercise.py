@@ -78,6 +78,9 @@ def check_deformation_gradient(student) -> list:
         elif deviation(got, swapped_D) <= 1e-9:
             reason = ("deformation_gradient uses Dm^-1 transposed: w_u = d1 Dinv[0, 0] + d2 Dinv[1, 0] "
                       "(F = [d1, d2] Dm^-1, column by column)")
+        elif matches(got, np.stack([d1 * D[:, 0, 0, None], d2 * D[:, 1, 1, None]], axis=1)):
+            reason = ("deformation_gradient uses only Dinv's diagonal: w_u = d1 Dinv[0, 0] + d2 Dinv[1, 0] and "
+                      "w_v = d1 Dinv[0, 1] + d2 Dinv[1, 1]")
         elif matches(got, np.stack([d1, d2], axis=1)):
             reason = "deformation_gradient returns the edges d1, d2 themselves: F = [d1, d2] Dm^-1 needs Dinv"
         else:

@@ -72,6 +72,13 @@ def _stencil(x, h, E, strain=lambda length, h: length / h - 1.0, swap_h="", swap
     return Er * strain(xr - x, hr) - El * strain(x - xl, hl)
 
 
+def _mean_h(h):
+    """Each node's mean rest length of its segments (a free end's missing one counts as h = 1)."""
+    hl = np.concatenate([[1.0], h])
+    hr = np.concatenate([h, [1.0]])
+    return 0.5 * (hl + hr)
+
+
 def check_rod_force(student) -> list:
     x, rest, h, E = _rods()
     call = student.via(_force_call)
@@ -103,6 +110,8 @@ def check_rod_force(student) -> list:
                                                                                  "strain is (length - h)/h"),
             (_stencil(x, h, E, strain=lambda length, h: length / h), "leaves out the -1: a segment at its rest "
                                                                       "length pulls with no force"),
+            (_stencil(x, h, E) / _mean_h(h), "divides by the node's mean segment length: that is a force per "
+                                             "length; the node's force is the difference of the two tensions"),
         ] if matches(got, wrong, scale)), "")
         if not np.all(np.isfinite(got)):
             reason = f"rod_force returns NaN or inf at node {i}" + (" (a free end: E = 0, h = 1 there)"

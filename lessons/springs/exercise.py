@@ -142,6 +142,8 @@ def check_force(student) -> list:
             (-c[:, None] * strain * n, "is missing 1/L: dW/dl = (c/L)(l/L - 1), the chain rule through l/L"),
             (-(c / L ** 2)[:, None] * strain * n, "divides by L once too often: dW/dl = (c/L)(l/L - 1)"),
             (-(c / L)[:, None] * (l - L)[:, None] * n, "uses l - L as the strain: it is l/L - 1"),
+            (-(c / L)[:, None] * strain * d / L[:, None], "divides d by L, not by l: the direction is the unit "
+                                                          "vector d/l"),
         ], scale)
         if not np.all(np.isfinite(got)):
             reason = f"spring_force returns NaN or inf at {_where(d, L, i)}"
@@ -194,6 +196,13 @@ def check_hessian(student) -> list:
             (along - across, "has the transverse term with the wrong sign: it is (c/L^2)(1 - L/l)(I - n n^T)"),
             (along + (c / L ** 2 * (1.0 - l / L))[:, None, None] * (np.eye(3) - nnT),
              "has 1 - l/L in the transverse term: it is 1 - L/l (the tension over l)"),
+            (along + (c / L ** 2 * (l / L - 1.0))[:, None, None] * (np.eye(3) - nnT),
+             "has the strain l/L - 1 in the transverse term: it is 1 - L/l (the tension over l), equal only to "
+             "first order in the strain"),
+            (along + (c / L ** 2 * (1.0 - L / l))[:, None, None] * np.eye(3),
+             "puts the transverse term on I: it acts across the spring only, (1 - L/l)(I - n n^T)"),
+            ((along + across) * L[:, None, None], "is L times the block: the prefactor is c/L^2 (c/L from "
+                                                  "dW/dl, 1/L more from the strain)"),
         ], scale)
         if not np.all(np.isfinite(got)):
             reason = f"spring_hessian returns NaN or inf at {_where(d, L, i)}"

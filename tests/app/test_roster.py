@@ -130,3 +130,42 @@ def test_grade_bad_input_is_one_line_and_exit_2(tmp_path, args, needle):
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and needle in lines[0], r.stderr
     assert not (tmp_path / "grades").exists()
+
+
+def _free_port() -> int:
+    import socket
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.mark.slow
+def test_a_class_is_graded_on_a_running_dask_scheduler(tmp_path):
+    """--scheduler: a scheduler and a worker started apart (on this machine's loopback, as they would
+    run on a cluster's nodes) grade the class; the task carries the students' files."""
+    import time
+    port = _free_port()
+    address = f"tcp://127.0.0.1:{port}"
+    env = dict(os.environ, PYTHONPATH=str(ROOT), ELASTIC_CACHE_DIR=str(ROOT / ".ti_cache"))
+    scheduler = subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1",
+                                  "--port", str(port), "--dashboard-address", ":0"], env=env,
+                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    worker = subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker", address, "--nworkers", "1",
+                               "--nthreads", "1", "--dashboard-address", ":0"], env=env, cwd=tmp_path,
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        for name in ("ann", "ben"):
+            folder = tmp_path / "class" / name
+            folder.mkdir(parents=True)
+            (folder / "rod_waves.py").write_text(_reference("rod_waves"))
+        time.sleep(3)
+        r = _cli("grade", "class", "rod-waves", "--functions-only", "--scheduler", address, "--out", "grades",
+                 cwd=tmp_path)
+        assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+        with open(tmp_path / "grades" / "gradebook.csv", newline="") as f:
+            rows = list(csv.DictReader(f))
+        assert [(row["student"], row["score"]) for row in rows] == [("ann", "100"), ("ben", "100")]
+    finally:
+        for proc in (worker, scheduler):
+            os.killpg(proc.pid, 9)
+            proc.wait()
