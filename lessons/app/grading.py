@@ -35,7 +35,7 @@ from . import channel
 from .arguments import UsageError, _Parser
 from .exercises import exercise_module, lessons_with_exercises
 from .results import encode, package_version, results_document
-from .sandbox import policy_problems
+from .sandbox import copied_from, policy_problems
 
 DEFAULT_TIME_LIMIT_S = 600.0
 DEFAULT_MEMORY_GB = 4.0
@@ -272,6 +272,7 @@ class Grader:
         self.path = module_file(solution_dir, lesson.id)
         self.rows: list[dict] = []
         self.notes: list[str] = []
+        self.flags: list[str] = []              # for the instructor (e.g. a copy of the shipped solution)
         self.usable: list[str] = []
         self.failed_checks: dict[str, str] = {}   # function -> the id of its failed check
         self.refused = ""                          # the guard's line: nothing more is graded
@@ -344,6 +345,12 @@ class Grader:
             return self._done(rows)
         reading = policy_problems(self.path)
         self._note(reading.notes)
+        reference = PROJECT_ROOT / "lessons" / self.lesson.id.replace("-", "_") / "solution.py"
+        if copied_from(self.path, reference, [t.name for t in self.tasks]):
+            self.flags.append("copy of the reference solution")
+            self._note([f"{self.path.name}: every function is the reference solution shipped with the suite "
+                        f"(lessons/{reference.parent.name}/solution.py), syntax tree for syntax tree: flagged for the "
+                        f"instructor"])
         if reading.problems:
             more = f" (and {len(reading.problems) - 1} more)" if len(reading.problems) > 1 else ""
             self.refused = reading.problems[0] + more
@@ -551,6 +558,7 @@ def check(argv: list[str], out=sys.stdout) -> int:
     started = time.time()
     rows: list[dict] = []
     notes: list[str] = []
+    flags: dict[str, list] = {}
     meta = dict(lessons=[l.id for l in wanted], solution=str(solution), command=["python", "-m", "lessons", "check",
                 *argv], version=package_version())
     exit_code, reason, complete = 0, "completed", False
@@ -566,6 +574,8 @@ def check(argv: list[str], out=sys.stdout) -> int:
                     grader.close()
                     rows += grader.rows
                     notes += [f"{lesson.id}: {n}" for n in grader.notes]
+                    if grader.flags:
+                        flags[lesson.id] = list(grader.flags)
         complete = True
         failed = sum(not r["passed"] for r in rows)
         exit_code = 1 if failed else 0
@@ -578,7 +588,7 @@ def check(argv: list[str], out=sys.stdout) -> int:
             signum, f"signal {signum}")
     written = ""
     if target is not None:
-        doc = results_document(rows, complete=complete, exit_code=exit_code, exit_reason=reason, notes=notes,
+        doc = results_document(rows, complete=complete, exit_code=exit_code, exit_reason=reason, notes=notes, flags=flags,
                                elapsed_s=round(time.time() - started, 3), **meta)
         try:
             target.write_bytes(encode(doc))

@@ -13,7 +13,9 @@ hang or forgery ends in that student's grade and nowhere else. The kernel cache
 What it writes, into ``--out DIR`` (default ``grades``), each file atomically:
 
 - ``gradebook.csv``: one row per student and lesson: student, lesson, status (graded, missing,
-  failed to grade), claims passed, claims total, score (percent of the claims passed);
+  failed to grade), claims passed, claims total, score (percent of the claims passed), flags for
+  the instructor (``copy of the reference solution``: every function has the shipped solution's
+  syntax tree);
 - ``<student>/results.json``: Gradescope's autograder results (one test per claim: name, score,
   max_score, status, output);
 - ``<student>/feedback.md``: per lesson, the claims that failed with their reasons, and the
@@ -124,6 +126,7 @@ def grade_task(student: str, lesson_id: str, files: dict, options: list, hard_li
             result["rows"] = [{k: r.get(k) for k in ("stage", "stage_title", "id", "claim", "passed", "reason")}
                               for r in doc["experiments"]]
             result["notes"] = list(doc.get("notes", []))
+            result["flags"] = [str(f) for f in (doc.get("flags") or {}).get(lesson_id, [])]
         except (OSError, ValueError, KeyError, TypeError):
             last = (stderr or stdout or "").strip().splitlines()
             result.update(status="failed to grade", error=f"the check ended with exit code {proc.returncode}"
@@ -165,10 +168,10 @@ def _score(result: dict, expected: dict) -> tuple[int, int, float]:
 def gradebook_text(results: list[dict], expected: dict) -> str:
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(["student", "lesson", "status", "passed", "total", "score"])
+    w.writerow(["student", "lesson", "status", "passed", "total", "score", "flags"])
     for r in sorted(results, key=lambda r: (r["student"], r["lesson"])):
         passed, total, score = _score(r, expected)
-        w.writerow([r["student"], r["lesson"], r["status"], passed, total, f"{score:g}"])
+        w.writerow([r["student"], r["lesson"], r["status"], passed, total, f"{score:g}", "; ".join(r.get("flags") or [])])
     return buf.getvalue()
 
 

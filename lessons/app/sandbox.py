@@ -90,8 +90,12 @@ def _allowed(dotted: str) -> bool:
     return dotted.split(".")[0] in ALLOWED_MODULES
 
 
-def _read_one(path: Path, reading: Reading, queue: list) -> None:
+def _read_one(path: Path, reading: Reading, queue: list, folder: Path) -> None:
     name = path.name
+    if path.resolve().parent != folder.resolve():
+        reading.problems.append(f"{name}: is a link to {path.resolve()}, outside the solution folder: a solution's "
+                                f"modules are its own files")
+        return
     try:
         text = path.read_text(encoding="utf-8")
         tree = ast.parse(text, filename=str(path))
@@ -170,15 +174,37 @@ def policy_problems(path: Path) -> Reading:
     """Read the student's module ``path`` and every module of its folder that it imports (no code
     runs): the problems that refuse it and the notes, one line each (see the module docstring)."""
     reading = Reading()
+    folder = Path(path).parent
     queue, seen = [Path(path)], set()
     while queue:
-        p = queue.pop(0).resolve()
-        if p in seen:
+        p = queue.pop(0)
+        if p.resolve() in seen:
             continue
-        seen.add(p)
-        reading.files.append(p)
-        _read_one(p, reading, queue)
+        seen.add(p.resolve())
+        reading.files.append(p.resolve())
+        _read_one(p, reading, queue, folder)
     return reading
+
+
+def _shape(func: ast.FunctionDef) -> str:
+    """A function's syntax tree without its docstring, names of locals kept: what a copy keeps."""
+    body = func.body[1:] if func.body and isinstance(func.body[0], ast.Expr) and \
+        isinstance(func.body[0].value, ast.Constant) and isinstance(func.body[0].value.value, str) else func.body
+    return ast.dump(ast.Module(body=body, type_ignores=[]), annotate_fields=False, include_attributes=False)
+
+
+def copied_from(path: Path, reference: Path, names: list) -> bool:
+    """Whether every function ``names`` of the student's module has the syntax tree of the reference
+    solution's (docstrings aside): the shipped solution handed in. One short function can match by
+    chance; a whole module does not."""
+    def shapes(p: Path) -> dict:
+        try:
+            tree = ast.parse(Path(p).read_text(encoding="utf-8"))
+        except (OSError, SyntaxError, UnicodeDecodeError):
+            return {}
+        return {n.name: _shape(n) for n in tree.body if isinstance(n, ast.FunctionDef)}
+    mine, theirs = shapes(path), shapes(reference)
+    return bool(names) and all(n in mine and mine[n] == theirs.get(n) for n in names)
 
 
 # ------------------------------------------------------------------ loading under restricted builtins

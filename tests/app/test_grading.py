@@ -347,3 +347,28 @@ def test_every_equation_a_template_cites_is_defined_in_it(tmp_path):
         cited = set(re.findall(r"\(([A-Z]{1,2}\d?)\)", text)) - {"E", "N", "X", "P", "D"}
         defined = set(re.findall(r"^\(([A-Z]{1,2}\d?)\) ", text, flags=re.M))
         assert cited <= defined, (package, cited - defined)
+
+
+def test_a_link_to_the_reference_is_refused_and_a_copy_of_it_flagged(tmp_path):
+    linked = tmp_path / "linked"
+    linked.mkdir()
+    (linked / "springs.py").symlink_to(ROOT / "lessons" / "springs" / "solution.py")
+    r = lessons_cli("check", "springs", "--solution", "linked", "--functions-only", "--results", "out.json",
+                    cwd=tmp_path)
+    assert r.returncode == 1
+    rows = _rows(tmp_path)
+    assert "is a link to" in rows["ex-module-rules"]["reason"] and "outside the solution folder" in \
+        rows["ex-module-rules"]["reason"]
+    reference(tmp_path / "copied", "springs")
+    r = lessons_cli("check", "springs", "--solution", "copied", "--functions-only", "--results", "out.json",
+                    cwd=tmp_path)
+    assert r.returncode == 0   # a copy computes the physics: it passes, and the instructor is told
+    doc = json.loads((tmp_path / "out.json").read_text())
+    assert doc["flags"] == {"springs": ["copy of the reference solution"]}
+    assert "every function is the reference solution shipped with the suite" in r.stdout
+    # one function written another way is not a copy
+    folder = _springs_with(tmp_path / "own", replace=[("return 0.5 * c * strain * strain",
+                                                       "return c * strain * strain / 2.0")])
+    r = lessons_cli("check", "springs", "--solution", str(folder), "--functions-only", "--results", "out.json",
+                    cwd=tmp_path)
+    assert r.returncode == 0 and json.loads((tmp_path / "out.json").read_text())["flags"] == {}
