@@ -18,7 +18,7 @@ import time
 
 import numpy as np
 
-MAX_BYTES = 1 << 30
+MAX_BYTES = 1 << 28   # 256 MiB: more than any answer of a check needs
 DTYPES = ("<f8", "<i8", "<i4", "|b1")
 
 
@@ -64,10 +64,21 @@ def pack(msg) -> bytes:
     return struct.pack(">I", len(header)) + header + b"".join(a.tobytes() for a in arrays)
 
 
-def send(fd: int, msg) -> None:
+def send(fd: int, msg, deadline: float | None = None) -> None:
+    """Write one message; with a ``deadline`` (``time.monotonic()`` seconds) the pipe is written as
+    it becomes writable and ChannelTimeout is raised when it stays full (a reader that stopped)."""
     data = memoryview(pack(msg))
+    if deadline is not None:
+        os.set_blocking(fd, False)
     while data:
-        n = os.write(fd, data)
+        if deadline is not None:
+            _, ready, _ = select.select([], [fd], [], max(0.0, deadline - time.monotonic()))
+            if not ready:
+                raise ChannelTimeout()
+        try:
+            n = os.write(fd, data)
+        except BlockingIOError:
+            continue
         data = data[n:]
 
 

@@ -161,7 +161,10 @@ class _Server:
 
     def ask(self, request: dict, deadline: float) -> dict:
         try:
-            channel.send(self.to_child, request)
+            channel.send(self.to_child, request, deadline)
+        except channel.ChannelTimeout:   # the child stopped reading
+            self.stop()
+            raise Stopped() from None
         except OSError:   # the child is gone: its reason comes with the answer's end of the channel
             pass
         return self._answer(deadline)
@@ -288,14 +291,20 @@ class Grader:
             self._note(ready.get("notes"))
             if "error" in ready:
                 raise StudentError(str(ready["error"])[:400])
-            if not ready.get("ready"):
-                raise Crashed("the student's process did not say it was ready")
+            own = ready.get("own")
+            if ready.get("ready") is not True or not isinstance(own, dict) or \
+                    not all(isinstance(k, str) and isinstance(v, str) for k, v in own.items()):
+                self.server.stop()
+                raise Crashed("the student's process sent a malformed answer (not ready)")
         return self.server
 
     def _note(self, notes) -> None:
-        for n in notes or []:
-            text = str(n)[:300]
-            if text not in self.notes:
+        """Notes from the reading or from the child (checked: a list of strings, printable)."""
+        if not isinstance(notes, list):
+            return
+        for n in notes[:20]:
+            text = printable(n)[:300] if isinstance(n, str) else ""
+            if text and text not in self.notes:
                 self.notes.append(text)
 
     def call(self, name: str, factory: str, args: list, inputs: list) -> dict:
@@ -327,8 +336,10 @@ class Grader:
             ast.parse(self.path.read_text(encoding="utf-8"), filename=str(self.path))
         except SyntaxError as exc:
             return f"{self.path.name}: line {exc.lineno}: {exc.msg}"
-        except (OSError, UnicodeDecodeError) as exc:
+        except (OSError, UnicodeDecodeError, ValueError) as exc:
             return f"{self.path.name}: cannot be read: {exc}"
+        except (RecursionError, MemoryError) as exc:
+            return f"{self.path.name}: cannot be read: it nests too deeply for the parser ({type(exc).__name__})"
         return ""
 
     # ---------------------------------------------------------------- the function checks

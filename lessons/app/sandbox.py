@@ -18,9 +18,16 @@ from passing without computing the physics, and from touching the grading:
 3. :class:`Guard` (armed before the student's module is imported, never disarmed in that process):
    a Python audit hook that ends the process, saying why on the grading channel, when the
    solution's code (a frame of its files on the stack) tries to write a file, start a process,
-   send a signal, open a socket, load a C library or walk the garbage collector's objects; and a fingerprint of numpy's,
-   math's and taichi's module attributes, compared after every piece of student code ran, so that
-   a patched ``np.max`` or ``ti.init`` is found even when reached through an alias.
+   send a signal, open a socket, load a C library or walk the garbage collector's objects, or when
+   a thread other than the main one starts a process; and a fingerprint of numpy's, math's and
+   taichi's module attributes, compared after every piece of student code ran, so that a patched
+   ``np.max`` is found even when reached through an alias. ``ti.init``/``ti.reset`` become
+   callables with no Python globals behind them.
+
+The reading refuses what reaches attributes by a name it cannot see: ``match`` class patterns,
+``operator.attrgetter``/``methodcaller`` and ``functools`` (found re-exported in numpy's public
+modules), private submodules (``numpy.linalg._linalg``). The module is compiled from its source,
+never from a ``__pycache__`` file.
 
 The child also ends itself when the grader ends (``PR_SET_PDEATHSIG``), and runs under a CPU-time
 and an address-space limit (``resource``). None of this makes student code safe to run on a
@@ -33,6 +40,7 @@ import builtins
 import importlib.util
 import os
 import sys
+import threading
 import types
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -56,6 +64,9 @@ BANNED_ATTRIBUTES = {
     "tofile", "memmap", "fromregex", "DataSource", "open_memmap", "tools", "imwrite", "imread", "system",
     "popen", "spawn", "fork", "kill", "environ", "getenv", "putenv", "threading", "multiprocessing", "signal",
     "socket", "shutil", "pathlib", "io", "pickle", "marshal", "runpy", "platform", "site",
+    # attribute access by a string (operator.attrgetter("a.__b__")) and the modules that offer it
+    "operator", "functools", "attrgetter", "methodcaller", "itemgetter", "types", "weakref", "copyreg",
+    "contextlib", "traceback", "linecache", "warnings", "abc", "collections", "itertools", "codecs", "builtin",
 }
 IGNORED_CALLS = ("init", "reset")   # ti.init / ti.reset: noted, and neutralised in the grading child
 
@@ -86,8 +97,14 @@ def _sibling(folder: Path, dotted: str) -> Path | None:
     return path if first and path.is_file() else None
 
 
-def _allowed(dotted: str) -> bool:
-    return dotted.split(".")[0] in ALLOWED_MODULES
+def _allowed(dotted: str, strict: bool = True) -> bool:
+    """numpy, math, cmath, taichi and (``strict``: what the student's source may name) their public
+    submodules, no part private or banned. At run time (not ``strict``) the libraries' own lazy
+    imports pass through the module's ``__import__`` too (``ndarray.dump`` imports
+    ``numpy._core._methods``), so any of their submodules is let through there."""
+    parts = dotted.split(".")
+    return parts[0] in ALLOWED_MODULES and (not strict or not any(p.startswith("_") or p in BANNED_ATTRIBUTES
+                                                                  for p in parts[1:]))
 
 
 def _read_one(path: Path, reading: Reading, queue: list, folder: Path) -> None:
@@ -102,8 +119,8 @@ def _read_one(path: Path, reading: Reading, queue: list, folder: Path) -> None:
     except SyntaxError as exc:
         reading.problems.append(f"{name}: line {exc.lineno}: {exc.msg}")
         return
-    except (OSError, UnicodeDecodeError) as exc:
-        reading.problems.append(f"{name}: cannot be read: {exc}")
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError, MemoryError) as exc:
+        reading.problems.append(f"{name}: cannot be read: {type(exc).__name__}")
         return
     folder = path.parent
     modules: set[str] = set()          # names bound to a module at the top (np, ti, math, helpers)
@@ -163,8 +180,9 @@ def _read_one(path: Path, reading: Reading, queue: list, folder: Path) -> None:
             if _root_name(node.func) in modules:
                 reading.notes.append(f"{name}: line {node.lineno}: calls {ast.unparse(node.func)}(...): the grader "
                                      f"ignores it (the engine starts Taichi itself: f64, 2 CPU threads); remove it")
-        elif isinstance(node, (ast.Global, ast.Nonlocal)):
-            pass
+        elif isinstance(node, (ast.Match, ast.MatchClass)):
+            refuse(node, "uses a match statement (its class patterns read attributes by name)",
+                   "a solution does not need one; use if")
     for node in ast.walk(tree):   # a module bound to another name and changed through it
         if isinstance(node, ast.Assign) and isinstance(node.value, ast.Name) and node.value.id in modules:
             refuse(node, f"binds the module {node.value.id} to another name", "use the module by its own name")
@@ -200,9 +218,9 @@ def copied_from(path: Path, reference: Path, names: list) -> bool:
     def shapes(p: Path) -> dict:
         try:
             tree = ast.parse(Path(p).read_text(encoding="utf-8"))
-        except (OSError, SyntaxError, UnicodeDecodeError):
+            return {n.name: _shape(n) for n in tree.body if isinstance(n, ast.FunctionDef)}
+        except (OSError, SyntaxError, UnicodeDecodeError, ValueError, RecursionError, MemoryError):
             return {}
-        return {n.name: _shape(n) for n in tree.body if isinstance(n, ast.FunctionDef)}
     mine, theirs = shapes(path), shapes(reference)
     return bool(names) and all(n in mine and mine[n] == theirs.get(n) for n in names)
 
@@ -225,7 +243,7 @@ class _Loader:
         self.builtins = safe
 
     def _import(self, name, globals=None, locals=None, fromlist=(), level=0):
-        if level == 0 and _allowed(name):
+        if level == 0 and _allowed(name, strict=False):
             return builtins.__import__(name, globals, locals, fromlist, 0)
         target = name if level == 0 else (name or (fromlist[0] if fromlist else ""))
         sibling = _sibling(self.folder, target) if target else None
@@ -244,13 +262,14 @@ class _Loader:
         key = str(path)
         if key in self.loaded:
             return self.loaded[key]
-        spec = importlib.util.spec_from_file_location(f"student_{path.stem}", path)
-        module = importlib.util.module_from_spec(spec)
-        module.__dict__["__builtins__"] = self.builtins
+        # compiled from the source read here: never from a __pycache__ file, which could hold other code
+        source = path.read_text(encoding="utf-8")
+        code = compile(source, key, "exec", dont_inherit=True)
+        module = types.ModuleType(f"student_{path.stem}")
+        module.__dict__.update(__file__=key, __builtins__=self.builtins)
         self.loaded[key] = module
         self.files.add(key)
-        self.files.add(str(path))
-        spec.loader.exec_module(module)
+        exec(code, module.__dict__)   # noqa: S102 - the student's module, under the guard
         return module
 
 
@@ -301,6 +320,8 @@ REFUSED_EVENTS = {
     "os.symlink": "creates a link", "os.link": "creates a link", "webbrowser.open": "opens a browser",
     "urllib.Request": "opens a connection", "mmap.__new__": "maps memory", "os.chown": "changes a file's owner",
 }
+PROCESS_EVENTS = {"subprocess.Popen", "os.system", "os.posix_spawn", "os.fork", "os.forkpty", "pty.spawn", "os.kill",
+                  "os.killpg", "socket.__new__", "socket.connect", "socket.bind", "os.exec", "os.spawn"}
 _WRITE_FLAGS = os.O_WRONLY | os.O_RDWR | os.O_CREAT | os.O_APPEND | os.O_TRUNC
 WATCHED_MODULES = ("numpy", "numpy.linalg", "math", "cmath", "taichi", "taichi.math", "builtins")
 
@@ -314,18 +335,28 @@ def _fingerprint() -> dict:
     return out
 
 
+class _Ignored:
+    """``ti.init``'s stand-in in the grading child: callable with any arguments; only slots, no
+    reference to the guard or to this module's globals."""
+    __slots__ = ("_notes", "_note")
+
+    def __init__(self, notes: list, note: str):
+        self._notes, self._note = notes, note
+
+    def __call__(self, *args, **kwargs):
+        self._notes.append(self._note)
+
+
 class Guard:
     """The grading child's guard (see the module docstring). ``report(text)`` writes the reason on
     the grading channel; the process then ends with exit code 3."""
 
     EXIT = 3
 
-    def __init__(self, report, writable: list):
+    def __init__(self, report):
         self.report = report
         self.files: set[str] = set()   # the solution's files (load_guarded adds each as it loads it)
-        self.writable = [str(Path(p).resolve()) for p in writable if p]
         self.armed = False
-        self.print_before = None
         self.notes: list[str] = []
         self.snapshot: dict = {}
 
@@ -340,11 +371,10 @@ class Guard:
         self.armed = True
 
     def _ignored(self, what: str):
-        notes = self.notes
-
-        def ignored(*args, **kwargs):
-            notes.append(f"{what}(...) was called and ignored: the engine runs Taichi as it started it")
-        return ignored
+        """A stand-in for ti.init/ti.reset with no Python frame or globals behind it (a builtin
+        method): calling it adds a note and does nothing else."""
+        note = f"{what}(...) was called and ignored: the engine runs Taichi as it started it"
+        return _Ignored(self.notes, note)
 
     def refuse(self, why: str) -> None:
         try:
@@ -352,26 +382,22 @@ class Guard:
         finally:
             os._exit(self.EXIT)
 
-    def _may_write(self, path) -> bool:
-        try:
-            target = os.path.realpath(os.fsdecode(path)) if not isinstance(path, int) else None
-        except (TypeError, ValueError):
-            return False
-        return target is not None and any(target == w or target.startswith(w + os.sep) for w in self.writable)
-
     def _hook(self, event: str, args) -> None:
         if not self.armed or event == "sys._getframe":
             return
         if event not in REFUSED_EVENTS and event not in ("open", "os.rename", "os.replace", "os.mkdir") and \
                 not event.startswith(("os.exec", "os.spawn")):
             return
-        if not self._solution_running():   # the engine's or Taichi's own work
+        if not self._solution_running():   # the engine's or Taichi's own work, from the main thread
+            if event in PROCESS_EVENTS and threading.current_thread() is not threading.main_thread():
+                self.refuse(f"a thread started by the solution {REFUSED_EVENTS.get(event, 'starts a process')} "
+                            f"({event})")
             return
         if event == "open":
             path, mode, flags = (tuple(args) + (None, None, None))[:3]
             writing = (isinstance(mode, str) and any(c in mode for c in "wax+")) or \
                       (isinstance(flags, int) and flags & _WRITE_FLAGS and not isinstance(mode, str))
-            if writing and not self._may_write(path):
+            if writing:
                 self.refuse(f"the solution tried to write {path!r}: a solution may not write files")
         elif event in ("os.rename", "os.replace", "os.mkdir"):
             self.refuse(f"the solution tried to {event[3:]} {tuple(args)[0]!r}: a solution may not touch files")

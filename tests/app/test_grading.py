@@ -222,6 +222,9 @@ def _rows(tmp_path) -> dict:
     ("open('/tmp/forged.jsonl', 'a').write('{}')\n", "uses open"),
     ("k = ti.lang.impl.__dict__\n", "private attribute .__dict__"),
     ("import numpy as np\nm = np\nm.abs = None\n", "binds the module np"),
+    ("import numpy as np\nget = np.ma.core.operator.attrgetter\n", "reaches .attrgetter"),
+    ("from numpy.linalg._linalg import norm\n", "imports from numpy.linalg._linalg"),
+    ("match ti.init:\n    case object(x=y):\n        pass\n", "uses a match statement"),
 ])
 def test_a_module_that_reaches_past_its_arguments_is_refused_in_one_line_before_it_runs(tmp_path, head, needle):
     _springs_with(tmp_path, head)
@@ -372,3 +375,28 @@ def test_a_link_to_the_reference_is_refused_and_a_copy_of_it_flagged(tmp_path):
     r = lessons_cli("check", "springs", "--solution", str(folder), "--functions-only", "--results", "out.json",
                     cwd=tmp_path)
     assert r.returncode == 0 and json.loads((tmp_path / "out.json").read_text())["flags"] == {}
+
+
+def test_the_module_is_compiled_from_its_source_never_from_a_bytecode_cache(tmp_path):
+    """A __pycache__ file compiled from other code (unchecked hash: Python would trust it) is not
+    what runs: the grader compiles the source it read."""
+    import importlib.util
+    import py_compile
+    folder = reference(tmp_path / "s", "springs")
+    path = folder / "springs.py"
+    good = path.read_text()
+    path.write_text(good.replace("return 0.5 * c * strain * strain", "return 0.0 * c * strain * strain"))
+    py_compile.compile(str(path), cfile=importlib.util.cache_from_source(str(path)),
+                       invalidation_mode=py_compile.PycInvalidationMode.UNCHECKED_HASH)
+    path.write_text(good.replace("return 0.5 * c * strain * strain", "return 0.5 * c * strain * strain  # mine"))
+    r = lessons_cli("check", "springs", "--solution", "s", "--functions-only", "--results", "out.json", cwd=tmp_path)
+    assert r.returncode == 0, r.stdout[-2000:]
+    assert _rows(tmp_path)["ex-spring-energy"]["passed"]
+
+
+def test_a_module_too_deep_for_the_parser_is_one_line_not_an_internal_error(tmp_path):
+    folder = reference(tmp_path / "s", "springs")
+    (folder / "springs.py").write_text("x = " + "-" * 3000 + "1\n")
+    r = lessons_cli("check", "springs", "--solution", "s", "--functions-only", "--results", "out.json", cwd=tmp_path)
+    assert r.returncode == 1 and "internal error" not in r.stderr
+    assert "nests too deeply" in _rows(tmp_path)["ex-module"]["reason"]
