@@ -127,20 +127,29 @@ class Reader:
         self._take(4)
         try:
             header = json.loads(self._take(size).decode("utf-8"))
-        except (UnicodeDecodeError, ValueError) as exc:
-            raise ChannelError(f"a message that is not JSON ({exc})") from None
+        except (UnicodeDecodeError, ValueError, RecursionError) as exc:
+            raise ChannelError(f"a message that is not JSON ({type(exc).__name__})") from None
         if not (isinstance(header, dict) and set(header) == {"msg", "arrays"} and isinstance(header["arrays"], list)):
             raise ChannelError("a message without its fields")
         arrays, total = [], 0
         for spec in header["arrays"]:
             if not (isinstance(spec, dict) and spec.get("dtype") in DTYPES and isinstance(spec.get("shape"), list)
-                    and all(isinstance(s, int) and 0 <= s < MAX_BYTES for s in spec["shape"])):
+                    and len(spec["shape"]) <= 8 and all(type(s) is int and 0 <= s < MAX_BYTES for s in spec["shape"])):
                 raise ChannelError("an array of another kind than numbers")
             dtype = np.dtype(spec["dtype"])
-            nbytes = int(np.prod(spec["shape"], dtype=np.int64)) * dtype.itemsize
+            count = 1
+            for n in spec["shape"]:   # in Python integers: no overflow
+                count *= n
+            nbytes = count * dtype.itemsize
             total += nbytes
             if total > MAX_BYTES:
                 raise ChannelError("a message over the size limit")
             self._fill(nbytes, deadline)
-            arrays.append(np.frombuffer(self._take(nbytes), dtype=dtype).reshape(spec["shape"]).copy())
-        return _decode(header["msg"], arrays)
+            try:
+                arrays.append(np.frombuffer(self._take(nbytes), dtype=dtype).reshape(spec["shape"]).copy())
+            except ValueError as exc:
+                raise ChannelError(f"an array that does not match its shape ({exc})") from None
+        try:
+            return _decode(header["msg"], arrays)
+        except RecursionError:
+            raise ChannelError("a message nested too deeply") from None

@@ -148,7 +148,13 @@ class _Server:
         except channel.ChannelError as exc:
             self.stop()
             raise Crashed(f"the student's process sent a malformed answer ({exc})") from None
-        except BaseException:   # an interrupt (Ctrl-C, a signal) of the grader stops the child with it
+        except (KeyboardInterrupt, Terminated):   # an interrupt of the grader stops the child with it
+            self.stop()
+            raise
+        except Exception as exc:  # noqa: BLE001 - anything else in reading the child's answer: its fault
+            self.stop()
+            raise Crashed(f"the student's process sent a malformed answer ({type(exc).__name__})") from None
+        except BaseException:
             self.stop()
             raise
         if not isinstance(answer, dict):

@@ -65,7 +65,7 @@ BANNED_ATTRIBUTES = {
     "popen", "spawn", "fork", "kill", "environ", "getenv", "putenv", "threading", "multiprocessing", "signal",
     "socket", "shutil", "pathlib", "io", "pickle", "marshal", "runpy", "platform", "site",
     # attribute access by a string (operator.attrgetter("a.__b__")) and the modules that offer it
-    "operator", "functools", "attrgetter", "methodcaller", "itemgetter", "types", "weakref", "copyreg",
+    "operator", "functools", "attrgetter", "methodcaller", "itemgetter", "weakref", "copyreg",
     "contextlib", "traceback", "linecache", "warnings", "abc", "collections", "itertools", "codecs", "builtin",
 }
 IGNORED_CALLS = ("init", "reset")   # ti.init / ti.reset: noted, and neutralised in the grading child
@@ -107,6 +107,60 @@ def _allowed(dotted: str, strict: bool = True) -> bool:
                                                                   for p in parts[1:]))
 
 
+# the library modules a solution may use, and through which it may reach names
+LIBRARY_MODULES = ("numpy", "numpy.linalg", "math", "cmath", "taichi", "taichi.math", "taichi.types")
+LIBRARY_HOMES = ("numpy", "taichi", "math", "cmath", "builtins")
+
+
+def _library(dotted: str):
+    """The library module ``dotted`` when a solution may use it, else None."""
+    if dotted not in LIBRARY_MODULES:
+        return None
+    try:
+        return importlib.import_module(dotted)
+    except ImportError:
+        return None
+
+
+def _library_value(module, attr: str) -> tuple[object, str]:
+    """What ``module.attr`` is, and '' when a solution may use it, else why not: an allowed module,
+    or a function, class, ufunc or number that the library itself defines (not a re-export of
+    another module's function, which is how eval and attrgetter hid in numpy and taichi)."""
+    try:
+        value = getattr(module, attr)
+    except Exception:  # noqa: BLE001 - a name the library does not offer (or a lazy import that fails)
+        return None, f"{module.__name__} has no public {attr}"
+    if isinstance(value, types.ModuleType):
+        return value, ("" if value.__name__ in LIBRARY_MODULES else
+                       f"{module.__name__}.{attr} is the module {value.__name__}, which a solution may not use")
+    if isinstance(value, (int, float, complex, str, bool, type(None))):
+        return value, ""
+    home = getattr(value, "__module__", None) or getattr(type(value), "__module__", "") or ""
+    if not isinstance(home, str) or home.split(".")[0] not in LIBRARY_HOMES:
+        return value, f"{module.__name__}.{attr} comes from {home or 'elsewhere'}, not from the library"
+    return value, ""
+
+
+def _library_chain(node: ast.Name, module, parents: dict, refuse) -> None:
+    """``np.a.b ...``: each step resolved against the real library; a module may only be the base of
+    a further attribute (never passed, bound or returned: what it leads to could not be read), and
+    every name reached must be one the library itself defines."""
+    here, value = node, module
+    while isinstance(value, types.ModuleType):
+        parent = parents.get(here)
+        if not (isinstance(parent, ast.Attribute) and parent.value is here):
+            refuse(here, f"uses the module {value.__name__} as a value",
+                   "use its functions by name (np.linalg.norm(...)), not the module itself")
+            return
+        if parent.attr.startswith("_") or parent.attr in BANNED_ATTRIBUTES:
+            return   # refused as an attribute
+        value, why = _library_value(value, parent.attr)
+        if why:
+            refuse(parent, f"reaches {ast.unparse(parent)}", f"{why}; use numpy's and taichi's math")
+            return
+        here = parent
+
+
 def _read_one(path: Path, reading: Reading, queue: list, folder: Path) -> None:
     name = path.name
     if path.resolve().parent != folder.resolve():
@@ -123,7 +177,9 @@ def _read_one(path: Path, reading: Reading, queue: list, folder: Path) -> None:
         reading.problems.append(f"{name}: cannot be read: {type(exc).__name__}")
         return
     folder = path.parent
-    modules: set[str] = set()          # names bound to a module at the top (np, ti, math, helpers)
+    modules: set[str] = set()          # names bound to a module (np, ti, math, helpers)
+    library: dict[str, object] = {}    # those bound to a library module: name -> the module
+    parents = {child: parent for parent in ast.walk(tree) for child in ast.iter_child_nodes(parent)}
 
     def refuse(node, what: str, instead: str) -> None:
         reading.problems.append(f"{name}: line {getattr(node, 'lineno', '?')}: {what}: {instead}")
@@ -131,8 +187,10 @@ def _read_one(path: Path, reading: Reading, queue: list, folder: Path) -> None:
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
             for alias in node.names:
-                if _allowed(alias.name):
-                    modules.add((alias.asname or alias.name).split(".")[0])
+                if _allowed(alias.name) and _library(alias.name) is not None:
+                    bound = alias.asname or alias.name.split(".")[0]
+                    modules.add(bound)
+                    library[bound] = _library(alias.name if alias.asname else alias.name.split(".")[0])
                 elif _sibling(folder, alias.name):
                     modules.add((alias.asname or alias.name).split(".")[0])
                     queue.append(_sibling(folder, alias.name))
@@ -149,8 +207,15 @@ def _read_one(path: Path, reading: Reading, queue: list, folder: Path) -> None:
                                "a relative import must name a module of the solution folder")
                     else:
                         queue.append(target)
-            elif _allowed(dotted):
+            elif _allowed(dotted) and _library(dotted) is not None:
                 for alias in node.names:
+                    if alias.name != "*" and not alias.name.startswith("_"):
+                        value, why = _library_value(_library(dotted), alias.name)
+                        if why:
+                            refuse(node, f"imports {dotted}.{alias.name}", f"{why}; use numpy's and taichi's math")
+                        elif isinstance(value, types.ModuleType):
+                            modules.add(alias.asname or alias.name)
+                            library[alias.asname or alias.name] = value
                     if alias.name in IGNORED_CALLS and dotted.split(".")[0] == "taichi":
                         reading.notes.append(f"{name}: line {node.lineno}: imports taichi's {alias.name}: the grader "
                                              f"ignores it (the engine starts Taichi: f64, 2 CPU threads)")
@@ -166,6 +231,8 @@ def _read_one(path: Path, reading: Reading, queue: list, folder: Path) -> None:
                        "its own modules beside it; write the function yourself")
         elif isinstance(node, ast.Name) and node.id in BANNED_NAMES:
             refuse(node, f"uses {node.id} ({BANNED_NAMES[node.id]})", "a solution computes with its arguments only")
+        elif isinstance(node, ast.Name) and node.id in library and isinstance(node.ctx, ast.Load):
+            _library_chain(node, library[node.id], parents, refuse)
         elif isinstance(node, ast.Attribute):
             if node.attr.startswith("_"):
                 refuse(node, f"reaches the private attribute .{node.attr}", "use the public names of numpy, math "
@@ -180,6 +247,11 @@ def _read_one(path: Path, reading: Reading, queue: list, folder: Path) -> None:
             if _root_name(node.func) in modules:
                 reading.notes.append(f"{name}: line {node.lineno}: calls {ast.unparse(node.func)}(...): the grader "
                                      f"ignores it (the engine starts Taichi itself: f64, 2 CPU threads); remove it")
+        elif isinstance(node, (ast.arg, ast.FunctionDef, ast.AsyncFunctionDef, ast.AnnAssign)) and any(
+                isinstance(a, ast.Constant) and isinstance(a.value, str) for a in
+                (getattr(node, "annotation", None), getattr(node, "returns", None))):
+            refuse(node, "has a string as an annotation (it would be evaluated as code)", "annotate with a type, "
+                   "or not at all")
         elif isinstance(node, (ast.Match, ast.MatchClass)):
             refuse(node, "uses a match statement (its class patterns read attributes by name)",
                    "a solution does not need one; use if")
