@@ -45,8 +45,9 @@ bending force  k |E|^2/(|N1|+|N2|) sin(theta/2) u_i  with his k = B/3 (because
 (the notes' rule: everything but theta measured on the rest mesh); so frozen, the force is
 exactly -grad of (W2): conservative.  It is NOT Bridson et al.'s literal force, which takes
 the coefficient from the current shape: the two agree while a hinge keeps its rest edge
-length and wing areas and differ by the ratio of the coefficients otherwise (1.21 on a hinge
-10% longer along its edge and 10% lower across it), and the literal force is the gradient of
+length and wing areas and differ by the ratio of the coefficients otherwise (|e|/(h0+h1): 1.21
+on a hinge 10% longer along its edge with its heights divided by 1.1; 1.222 with them times 0.9),
+and the literal force is the gradient of
 no energy (its Jacobian is not symmetric); tests/engine/test_bending_energy.py measures both.
 For a rest angle we use sin((theta - theta_bar)/2) (Bridson writes sin(theta/2) -
 sin(theta_bar/2); the two agree to first order in the deviation).  Compared with the

@@ -459,8 +459,44 @@ def test_bridson_variant_is_bridsons_formula_with_the_coefficient_of_the_rest_me
     assert np.abs(f - literal).max() < 1e-12 * np.abs(f).max()
 
 
+@pytest.mark.parametrize("heights,want", [(1 / 1.1, 1.21), (0.9, 1.1 / 0.9)], ids=["heights/1.1", "heights*0.9"])
+def test_bridson_literal_coefficient_goes_with_edge_over_heights(heights, want):
+    """The literal coefficient |E|^2/(|N1|+|N2|) = |E|/(h0+h1) over its rest value: an edge 10%
+    longer with the heights divided by 1.1 gives 1.1^2 = 1.21; with the heights times 0.9 ("10%
+    lower") it gives 1.1/0.9 = 1.2222, not 1.21."""
+    kw = dict(L=1.0, p0=0.4, r0=0.8, p1=0.6, r1=0.7)
+    rest = analytic_hinge(0.0, **kw)
+    x = analytic_hinge(1.0, **kw)
+    x[:, 0] *= 1.1
+    x[:, 1:] *= heights
+    H = np.arange(4).reshape(-1, 4)
+    E = BendingEnergy(rest, H, 0.9, "bridson")
+    _, coef = _bridson_literal(x, H, 0.3)
+    geo = E.geometry
+    ratio = coef / (geo["edge_length"] ** 2 / (2 * (geo["A0"] + geo["A1"])))
+    assert ratio == pytest.approx(want, rel=1e-12)
+
+
+def test_moving_the_wings_along_their_normals_lowers_theta():
+    """The sign the bending lesson states: theta < 0 when the wings fold towards the side the
+    normals point to, theta > 0 when they fold away (a ridge seen from the normal side)."""
+    from engine.mesh.measures import dihedral_angles
+    X = np.array([[0.0, 0, 0], [1.0, 0, 0], [0.5, 1.0, 0], [0.5, -1.0, 0]])
+    H = np.array([[0, 1, 2, 3]])
+    e, a0, a1 = X[1] - X[0], X[2] - X[0], X[3] - X[0]
+    N0, N1 = np.cross(e, a0), np.cross(a1, e)
+    assert np.allclose(N0 / np.linalg.norm(N0), N1 / np.linalg.norm(N1))   # flat: one normal side
+    towards = X.copy()
+    towards[2] += 0.1 * N0 / np.linalg.norm(N0)
+    towards[3] += 0.1 * N1 / np.linalg.norm(N1)
+    away = X.copy()
+    away[2] -= 0.1 * N0 / np.linalg.norm(N0)
+    away[3] -= 0.1 * N1 / np.linalg.norm(N1)
+    assert dihedral_angles(towards, H)[0] < 0 < dihedral_angles(away, H)[0]
+
+
 def test_bridson_variant_on_a_stretched_hinge_is_conservative_and_differs_from_the_literal_force():
-    """On a hinge whose edge is 10% longer and whose wings are 10% lower than at rest, Bridson's
+    """On a hinge whose edge is 10% longer and whose wing heights are divided by 1.1, Bridson's
     coefficient |E|^2/(|N1|+|N2|) = |E|/(h0+h1) is 1.21 x its rest value. The variant keeps the
     rest value: its force is minus the gradient of 4 k_e (1 - cos(theta/2)) (central differences)
     and its Jacobian is symmetric; the literal force is 1.21 x larger and has no energy (its
@@ -474,7 +510,7 @@ def test_bridson_variant_on_a_stretched_hinge_is_conservative_and_differs_from_t
         rest = analytic_hinge(0.0, **kw)
         x = analytic_hinge(rng.uniform(0.6, 1.6), **kw)
         x[:, 0] *= 1.1          # the edge 10% longer
-        x[:, 1:] /= 1.1         # the wings 10% lower
+        x[:, 1:] /= 1.1         # the wing heights divided by 1.1
         Q, t = random_rotation(rng), rng.normal(size=3)
         bent.append((x @ Q.T + t, rest @ Q.T + t))
     X = np.concatenate([b[0] for b in bent])
