@@ -513,6 +513,22 @@ class Grader:
                 blame = f"likely from your {' and '.join(suspects)}"
                 r["reason"] = f"{r['reason']} ({blame})" if r.get("reason") else blame
 
+def check_limits(args) -> None:
+    """``--time-limit`` and ``--memory-limit`` (check and grade): bad values are UsageError."""
+    if not (args.time_limit > 0 and math.isfinite(args.time_limit)):
+        raise UsageError(f"--time-limit must be a number of seconds > 0 (got {args.time_limit:g})")
+    if not (0.5 <= args.memory_limit <= 256):
+        raise UsageError(f"--memory-limit must be a number of GiB in 0.5..256 (got {args.memory_limit:g})")
+
+
+def check_stages(lessons, stages) -> None:
+    """Every ``--stage`` in range for every lesson asked (check and grade)."""
+    for lesson in lessons:
+        bad = [s for s in (stages or []) if not 1 <= s <= len(lesson.stages)]
+        if bad:
+            raise UsageError(f"--stage must be in 1..{len(lesson.stages)} for {lesson.id} (got {bad[0]})")
+
+
 def _end_with_parent(signal_number: int) -> None:
     """Ask Linux to send ``signal_number`` to this process when its parent ends (a no-op elsewhere)."""
     try:
@@ -547,10 +563,7 @@ def check(argv: list[str], out=sys.stdout) -> int:
     args = _parser(ids).parse_args(argv)
     if args.lesson != "all" and args.lesson not in ids:
         raise UsageError(f"LESSON must be one of {', '.join(ids)} or all (got {args.lesson!r})")
-    if not (args.time_limit > 0 and math.isfinite(args.time_limit)):
-        raise UsageError(f"--time-limit must be a number of seconds > 0 (got {args.time_limit:g})")
-    if not (0.5 <= args.memory_limit <= 256):
-        raise UsageError(f"--memory-limit must be a number of GiB in 0.5..256 (got {args.memory_limit:g})")
+    check_limits(args)
     solution = Path(args.solution)
     if not solution.is_dir():
         raise UsageError(f"--solution {str(solution)!r} is not a folder: give the folder written by "
@@ -563,10 +576,7 @@ def check(argv: list[str], out=sys.stdout) -> int:
     elif not module_file(solution, args.lesson).exists():
         raise UsageError(f"{module_file(solution, args.lesson)} does not exist: write it first with "
                          f"'python -m lessons exercise {args.lesson} {solution}'")
-    for lesson in wanted:
-        bad = [s for s in (args.stage or []) if not 1 <= s <= len(lesson.stages)]
-        if bad:
-            raise UsageError(f"--stage must be in 1..{len(lesson.stages)} for {lesson.id} (got {bad[0]})")
+    check_stages(wanted, args.stage)
     target = _results_target(args.results, solution) if args.results is not None else None
     if os.environ.get("ELASTIC_GRADE_TASK") == "1":   # a task of 'grade': end (cleanly) with the worker
         _end_with_parent(signal_number=15)

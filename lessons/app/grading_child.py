@@ -53,7 +53,7 @@ def main(argv: list[str]) -> int:
 
     from engine import runtime
     runtime.init()
-    from .._exercise import LocalFunction, StudentError, direct, load_before_swap, normalise_result, call_student
+    from .._exercise import StudentError, call_student, direct, load_before_swap, normalise_result
     from . import registry
     from .exercises import exercise_module
     from .sandbox import Guard, load_guarded, own_function

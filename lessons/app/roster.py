@@ -29,7 +29,6 @@ import csv
 import hashlib
 import io
 import json
-import math
 import os
 import re
 import signal
@@ -43,7 +42,7 @@ from .._exercise import module_file
 from .._framework import Terminated
 from .arguments import UsageError, _Parser
 from .exercises import lessons_with_exercises
-from .grading import DEFAULT_MEMORY_GB, DEFAULT_TIME_LIMIT_S, PROJECT_ROOT
+from .grading import DEFAULT_MEMORY_GB, DEFAULT_TIME_LIMIT_S, PROJECT_ROOT, check_limits, check_stages
 from .results import package_version
 
 STATE = ".grade-state.json"
@@ -250,20 +249,14 @@ def grade(argv: list[str], out=sys.stdout, err=sys.stderr) -> int:
                          f"(at most 100)")
     if not 1 <= args.workers <= 64:
         raise UsageError(f"--workers must be an integer in 1..64 (got {args.workers})")
-    if not (args.time_limit > 0 and math.isfinite(args.time_limit)):
-        raise UsageError(f"--time-limit must be a number of seconds > 0 (got {args.time_limit:g})")
-    if not (0.5 <= args.memory_limit <= 256):
-        raise UsageError(f"--memory-limit must be a number of GiB in 0.5..256 (got {args.memory_limit:g})")
+    check_limits(args)
     outdir = Path(args.out)
     if outdir.exists() and not outdir.is_dir():
         raise UsageError(f"--out {args.out!r} is a file: give a folder for the gradebook")
     if outdir.resolve() == roster.resolve() or roster.resolve() in outdir.resolve().parents:
         raise UsageError(f"--out {args.out!r} is inside the roster: give a folder outside {args.roster!r}")
     lessons = [l for l in available if args.lesson in ("all", l.id)]
-    for lesson in lessons:
-        wrong = [s for s in (args.stage or []) if not 1 <= s <= len(lesson.stages)]
-        if wrong:
-            raise UsageError(f"--stage must be in 1..{len(lesson.stages)} for {lesson.id} (got {wrong[0]})")
+    check_stages(lessons, args.stage)
     try:
         outdir.mkdir(parents=True, exist_ok=True)
         probe = outdir / f".grade-probe-{os.getpid()}"
