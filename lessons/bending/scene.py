@@ -87,6 +87,19 @@ def around(axis: str) -> int:
     return 0 if axis == "y" else 1
 
 
+def edge_family_folds(flat, angle_deg: float) -> tuple[np.ndarray, np.ndarray]:
+    """On a right-triangle grid turned by a against the cylinder axis (from :func:`sheet`), each
+    hinge's small-bend fold angle in units of h/R, by its edge's family (stage 3's narrative):
+    (cos^2 a - cos a sin a) along the axis at a = 0, (sin^2 a - cos a sin a) around it and
+    sqrt2 cos a sin a on the diagonals. Returns (family index 0..2 per hinge, predicted theta R/h)."""
+    H, V = flat.hinges, flat.vertices
+    d = V[H[:, 1]] - V[H[:, 0]]
+    eighth = np.round((np.degrees(np.arctan2(d[:, 1], d[:, 0])) - angle_deg) / 45.0).astype(int) % 4
+    c, s = math.cos(math.radians(angle_deg)), math.sin(math.radians(angle_deg))
+    family = np.array([1, 2, 0, 2])[eighth]  # edges at 0, 45, 90, 135 degrees from the grid's rows
+    return family, np.array([c * c - c * s, s * s - c * s, math.sqrt(2) * c * s])[family]
+
+
 def continuum_energy(B, R, area):
     """1/2 B H^2 * area with the mean curvature H = 1/(2R) of a cylinder."""
     return 0.5 * B * (1.0 / (2.0 * R)) ** 2 * area

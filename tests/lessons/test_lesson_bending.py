@@ -106,6 +106,26 @@ def test_stage3_ratio_depends_on_orientation(stages, mesh, value):
     assert abs(e.measured / e.theory - 1) < 1e-3
 
 
+@pytest.mark.parametrize("mesh", ["grid-0deg", "grid-45deg", "grid-15deg", "grid-30deg", "grid-minus45deg"])
+def test_stage3_each_edge_family_folds_as_the_narrative_says_signs_included(stages, mesh):
+    """The narrative's three per-family fold angles, checked hinge by hinge; the second family's
+    sign was once written the other way, which this would catch wherever sin a != 0 (at -45 deg
+    the diagonals fold against the legs, a concave kink)."""
+    e = stages[3][f"{mesh}-edge-family-folds"]
+    assert e.passed and e.tolerance == pytest.approx(0.1 / 64 ** 2)  # (h/R)^2 / 10 at n = 65, R = 1
+
+
+def test_edge_families_on_the_turned_grid_tell_the_signs_apart():
+    """At -45 deg the legs' families give +1 and the diagonals -sqrt2/2 (in h/R); flipping the
+    second family's sign moves its prediction by 2, far beyond the stage's 2.4e-5."""
+    from lessons.bending.scene import edge_family_folds, sheet
+    flat, _ = sheet("grid", 9, -45.0)
+    family, predicted = edge_family_folds(flat, -45.0)
+    for f, value in ((0, 1.0), (1, 1.0), (2, -math.sqrt(0.5))):
+        assert np.allclose(predicted[family == f], value)
+    assert (family == 2).sum() == 64  # 8 x 8 cells, one diagonal each, all of them hinges
+
+
 @pytest.mark.parametrize("mesh,value", [("grid-15deg", 0.75), ("grid-30deg", 0.8840), ("grid-minus45deg", 3.0),
                                         ("lattice-15deg", 1.0)])
 def test_stage3_discrete_shells_fixes_the_third_only_on_aligned_meshes(stages, mesh, value):
