@@ -181,6 +181,7 @@ class _Session:
         self.version = _package_version()
         self.runtime = info.as_dict() if info is not None else None
         self.all_passed, self.stopped, self.failure = True, False, None
+        self.unrecorded: list[str] = []  # lessons whose recording could not be written: the run is partial
         self.open_rec = None  # (recorder, lesson) of the lesson being run, until its recording is closed
 
     def execute(self) -> int:
@@ -265,9 +266,9 @@ class _Session:
         try:
             written = rec.close(status=status) if target is not None else rec.close()
         except OutputWriteError as e:
+            self.unrecorded.append(l.id)
             raise OutputFailed(f"--record {_shown(target.given)}: could not write the recording "
-                               f"({e.strerror or e}); the earlier file there is kept and the partial one "
-                               f"removed") from None
+                               f"({e.strerror or e}); {_left_there(target)}") from None
         finally:
             signals.cleaning = was_cleaning
         self._report_recording(rec, l, target, written, complete, reason)
@@ -298,10 +299,8 @@ class _Session:
         if complete:
             _say(self.out, f"\nrecording: {_shown(str(written))}  (open with: rerun {_shown(str(written))})")
         else:
-            kept = (f"; the earlier {_shown(str(target.path))} is kept" if target.path != written
-                    and target.path.exists() else "")
             _say(self.out, f"\nrecording (PARTIAL: {reason}; stages {_stage_list(self.completed[l.id])} of "
-                           f"{_stage_list(self.requested[l.id])}): {_shown(str(written))}{kept}")
+                           f"{_stage_list(self.requested[l.id])}): {_shown(str(written))}{_earlier(target)}")
 
     def _finish(self) -> None:
         """The end of the run, however it ended (signals from here on are only noted): close a
@@ -312,7 +311,7 @@ class _Session:
             rec, l = self.open_rec
             self._close_unfinished(rec, l, self.failure)
         code, reason = _outcome(self.failure, self.stopped, self.all_passed)
-        complete = all(self.completed[l.id] == self.requested[l.id] for l in self.plan.chosen)
+        complete = not self.unrecorded and all(self.completed[l.id] == self.requested[l.id] for l in self.plan.chosen)
         if self.results_target is not None:
             self._write_results(code, reason, complete)
         for _, t in self.targets:
@@ -333,12 +332,10 @@ class _Session:
             if complete:
                 _say(self.out, f"results: {_shown(str(where))}")
             else:
-                kept = f"; the earlier {_shown(str(target.path))} is kept" if target.path.exists() else ""
-                _say(self.out, f"results (PARTIAL: {reason}): {_shown(str(where))}{kept}")
+                _say(self.out, f"results (PARTIAL: {reason}): {_shown(str(where))}{_earlier(target)}")
         except OutputWriteError as e:
             _say(self.err, f"python -m lessons: error: --results {_shown(target.given)}: could not write "
-                           f"the results ({e.strerror or e}); the earlier file there is kept and the partial one "
-                           f"removed")
+                           f"the results ({e.strerror or e}); {_left_there(target)}")
             if self.failure is None:
                 self.failure = OutputFailed("the results could not be written")
                 self.failure.reported = True
@@ -360,6 +357,20 @@ class OutputFailed(Exception):
     """An output file could not be written at the end of the run (exit 1; one line)."""
 
     reported = False
+
+
+def _earlier(target) -> str:
+    """What became of the file under the final name, said after where a partial output went."""
+    if target.written != target.path:
+        return f"; the earlier {_shown(str(target.path))} is kept" if target.path.exists() else ""
+    return f"; it replaced the earlier {_shown(str(target.path))} (--overwrite-partial)" if target.replaced else ""
+
+
+def _left_there(target) -> str:
+    """What is left under an output's name after writing it failed (the temporary file is removed)."""
+    if target.path.exists():
+        return "the earlier file there is kept and the partial one removed"
+    return "the partial file is removed and nothing is left there"
 
 
 def _stage_list(stages: list[int]) -> str:

@@ -107,6 +107,7 @@ class OutputFile:
         self.tmp: Path | None = None
         self._created: list[Path] = []  # directories prepare() made (innermost first)
         self.written: Path | None = None
+        self.replaced = False  # whether commit() replaced a file that was there
 
     # --- up front ------------------------------------------------------------------
     def _existing_ancestor(self) -> tuple[Path, list[Path]]:
@@ -247,11 +248,12 @@ class OutputFile:
         dest = self.destination(complete)
         try:
             self._check_replaceable(dest)  # something may have appeared there during the run
+            replaced = os.path.lexists(dest)
             os.replace(self.tmp, dest)
         except OSError as exc:
             self.discard()
             raise OutputWriteError(exc.errno or errno.EIO, exc.strerror or str(exc)) from None
-        self.tmp = None
+        self.tmp, self.replaced = None, replaced
         try:  # make the rename itself durable
             dfd = os.open(dest.parent, os.O_RDONLY)
             try:

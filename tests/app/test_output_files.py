@@ -145,9 +145,9 @@ def test_a_full_disk_keeps_the_earlier_recording(small_disk, tmp_path, monkeypat
     assert len(line) == 1 and "could not write the recording (No space left on device after" in line[0], err
     assert "the earlier file there is kept and the partial one removed" in line[0]
     assert (small_disk / "r.rrd").read_bytes() == earlier
-    assert sorted(p.name for p in small_disk.iterdir()) == ["r.rrd", "res.json"]  # no partial, no temporary
-    doc = read_results(small_disk / "res.json")  # the results fit once the partial recording is gone
-    assert doc["complete"] is True and doc["exit_code"] == 1 and "could not write the recording" in doc["exit_reason"]
+    assert sorted(p.name for p in small_disk.iterdir()) == ["r.rrd", "res.partial.json"]  # no temporary
+    doc = read_results(small_disk / "res.partial.json")  # the results fit once the partial recording is gone
+    assert doc["complete"] is False and doc["exit_code"] == 1 and "could not write the recording" in doc["exit_reason"]
     assert {r["stage"] for r in doc["experiments"]} == {2}
 
 
@@ -225,6 +225,73 @@ def test_a_partial_run_never_replaces_a_complete_file_unless_asked(tmp_path, mon
         for name, data in earlier.items():
             assert (tmp_path / name).read_bytes() == data
         assert "(PARTIAL: stopped at --pause" in out and "is kept" in out
+
+
+@pytest.mark.parametrize("overwrite", [False, True])
+@pytest.mark.parametrize("earlier", [False, True])
+def test_a_partial_run_says_truly_what_became_of_the_earlier_files(tmp_path, monkeypatch, capfd, overwrite, earlier):
+    """"is kept" only when an earlier file under the final name is there and was not written over;
+    "replaced" only when --overwrite-partial wrote over one; neither when there was none."""
+    if earlier:
+        (tmp_path / "r.rrd").write_bytes(b"complete recording")
+        (tmp_path / "res.json").write_bytes(b'{"complete": true, "experiments": []}')
+    flags = ["--overwrite-partial"] if overwrite else []
+    rc, out, err = main_in(tmp_path, monkeypatch, capfd, "run", "rod-waves", "--stage", "1,4", "--pause", "--quiet",
+                           "--record", "r.rrd", "--results", "res.json", *flags, stdin=_Tty("q\n"))
+    assert rc == 0, err
+    lines = {kind: next(l for l in out.splitlines() if l.startswith(f"{kind} (PARTIAL"))
+             for kind in ("recording", "results")}
+    for kind, name in (("recording", "r.rrd"), ("results", "res.json")):
+        where = tmp_path / (name if overwrite else name.replace(".", ".partial."))
+        if not earlier:
+            tail = ""
+        elif overwrite:
+            tail = f"; it replaced the earlier {tmp_path / name} (--overwrite-partial)"
+        else:
+            tail = f"; the earlier {tmp_path / name} is kept"
+        assert lines[kind].endswith(f": {where}{tail}"), lines[kind]
+    if earlier and not overwrite:
+        assert (tmp_path / "r.rrd").read_bytes() == b"complete recording"
+
+
+def _failing_recording_writes(monkeypatch):
+    """Writing a .rrd fails as on a full disk (the temporary file removed, the earlier file untouched)."""
+    import errno
+
+    from lessons.app.outfile import OutputFile, OutputWriteError
+    write = OutputFile.write_bytes
+
+    def write_bytes(self, data):
+        if self.path.suffix != ".rrd":
+            return write(self, data)
+        self.discard()
+        raise OutputWriteError(errno.ENOSPC, f"No space left on device after 0 of {len(data):,} bytes")
+    monkeypatch.setattr(OutputFile, "write_bytes", write_bytes)
+
+
+@pytest.mark.parametrize("earlier", [False, True])
+def test_a_recording_that_cannot_be_written_makes_the_run_partial(tmp_path, monkeypatch, capfd, earlier):
+    if earlier:
+        (tmp_path / "r.rrd").write_bytes(b"complete recording")
+        (tmp_path / "res.json").write_bytes(b'{"complete": true, "experiments": []}')
+    _failing_recording_writes(monkeypatch)
+    rc, out, err = main_in(tmp_path, monkeypatch, capfd, "run", "rod-waves", "--stage", "1", "--quiet",
+                           "--record", "r.rrd", "--results", "res.json")
+    assert rc == 1, (out, err)
+    line = one_error_line(err)
+    assert "--record r.rrd: could not write the recording (No space left on device after 0 of" in line
+    assert line.endswith("the earlier file there is kept and the partial one removed" if earlier
+                         else "the partial file is removed and nothing is left there"), line
+    doc = read_results(tmp_path / "res.partial.json")  # partial, as the README says, under the partial name
+    assert doc["complete"] is False and doc["exit_code"] == 1 and "could not write the recording" in doc["exit_reason"]
+    assert doc["stages_completed"] == doc["stages_requested"] == {"rod-waves": [1]}
+    assert f"(the run did not complete: --record r.rrd: could not write the recording" in out
+    if earlier:
+        assert (tmp_path / "r.rrd").read_bytes() == b"complete recording"
+        assert read_results(tmp_path / "res.json")["complete"] is True
+        assert f"; the earlier {tmp_path / 'res.json'} is kept" in out
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["res.partial.json"] + (["r.rrd", "res.json"]
+                                                                                      if earlier else []))
 
 
 # --------------------------------------------------------------------------------------------
