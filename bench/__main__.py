@@ -21,7 +21,6 @@ only by ``python -m bench.report RAW --reference``).  Raw inputs and logs stay i
 Exit status: 0 when every part ran, 1 when a part failed (the report is written anyway, and
 says which), 2 for bad arguments.
 """
-import argparse
 import json
 import os
 import subprocess
@@ -30,6 +29,8 @@ import time
 from pathlib import Path
 
 from bench import machine
+from bench.config import QUICK_SKIPS
+from bench.output import Parser, out_dir_problem, usage_error
 
 BENCH_DIR = Path(__file__).resolve().parent
 PROJECT_ROOT = BENCH_DIR.parent
@@ -40,7 +41,7 @@ PARTS = ("checks",) + tuple(CONFIGS) + ("startup", "headline")
 # what every contender computes, checked before anything is timed (the plain-pytest checks)
 CHECK_FILES = ("bench/test_correctness.py", "bench/test_peers_explicit.py")
 TIMEOUT_S = {"quick": 600, "full": 1800}
-QUICK_SKIPS = ("t1-f64", "t2-f32")
+PROG = "python -m bench"
 
 
 def _log(msg: str) -> None:
@@ -92,13 +93,15 @@ def _skip_reasons(log_path: Path) -> list:
 
 
 def parse_args(argv):
-    ap = argparse.ArgumentParser(prog="python -m bench", description=(
+    """The arguments, checked: bad ones (an unknown part, parts that leave nothing to run, a part
+    --quick does not run) end the program with one line on stderr and exit status 2."""
+    ap = Parser(prog=PROG, description=(
         "Run the explicit-vs-implicit benchmarks (pytest-benchmark) in one process per configuration, the "
         "start-up probe and the headline E sweep, and write bench/results/<timestamp>.{json,md,png} plus "
         "latest.* copies."))
     ap.add_argument("--quick", action="store_true",
                     help="the full run's 2-thread f64 rows up to 128^2, the headline at 32^2 and 64^2 (about "
-                         "2 minutes on the quiet 2-core machine)")
+                         "3 minutes on the quiet 2-core machine)")
     ap.add_argument("--out", default=str(BENCH_DIR / "results"), help="output directory (default bench/results)")
     ap.add_argument("--skip", default="", help=f"comma list of parts to leave out: {', '.join(PARTS)}")
     ap.add_argument("--only", default="", help="comma list of the only parts to run")
@@ -111,25 +114,36 @@ def parse_args(argv):
         bad = [p for p in getattr(args, opt).split(",") if p and p not in PARTS]
         if bad:
             ap.error(f"--{opt}: unknown part(s) {', '.join(bad)}; valid: {', '.join(PARTS)}")
+    if args.quick:   # the quick profile times the 2-thread f64 process only (bench/config.py)
+        asked = [p for p in args.only.split(",") if p in QUICK_SKIPS]
+        if asked:
+            ap.error(f"--quick times the t2-f64 process only; run {', '.join(asked)} without --quick")
+    if not selected_parts(args):
+        ap.error(f"--only {args.only or '(all)'} and --skip {args.skip or '(none)'} leave no part to run"
+                 + (f" (--quick leaves out {', '.join(QUICK_SKIPS)})" if args.quick else "")
+                 + f"; parts: {', '.join(PARTS)}")
     return args
+
+
+def selected_parts(args) -> list:
+    """The parts to run, in order: --only's (all by default) less --skip's, less QUICK_SKIPS with --quick."""
+    skip = {p for p in args.skip.split(",") if p}
+    only = {p for p in args.only.split(",") if p}
+    return [p for p in PARTS if p not in skip and (not only or p in only) and not (args.quick and p in QUICK_SKIPS)]
 
 
 def main(argv=None) -> int:
     args = parse_args(argv)
     profile = "quick" if args.quick else "full"
     out = Path(args.out).resolve()
+    problem = out_dir_problem(out)
+    if problem:
+        return usage_error(PROG, f"--out {args.out}: {problem}; give a writable directory")
     stamp = time.strftime("%Y%m%d-%H%M%S")
     raw = out / "raw" / stamp
     skip = {p for p in args.skip.split(",") if p}
     only = {p for p in args.only.split(",") if p}
-    parts = [p for p in PARTS if p not in skip and (not only or p in only)]
-    if args.quick:   # the quick profile times the 2-thread f64 process only (bench/config.py)
-        asked = [p for p in only if p in QUICK_SKIPS]
-        if asked:
-            print(f"python -m bench: --quick times the t2-f64 process only; run {', '.join(asked)} without --quick",
-                  file=sys.stderr)
-            return 2
-        parts = [p for p in parts if p not in QUICK_SKIPS]
+    parts = selected_parts(args)
     raw.mkdir(parents=True, exist_ok=True)
     timeout = TIMEOUT_S[profile]
     info = machine.machine_info()

@@ -29,6 +29,7 @@ EXPLICIT_BLOCK = 10    # steps per call of the explicit "block" rows (the lesson
 ROD_E, ROD_RHO = 1.0, 1.0
 ROD_IMPLICIT_NU = 10.0                # rod backward-Euler dt = 10 h/c (10x the explicit limit)
 
+QUICK_SKIPS = ("t1-f64", "t2-f32")   # the configurations python -m bench --quick does not run (no rows below)
 # per profile: sizes per configuration ("t2-f64", "t1-f64", "t2-f32"), time budget per benchmark
 PROFILES = {
     "smoke": dict(budget=0.0, max_rounds=1, sizes={

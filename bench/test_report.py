@@ -246,3 +246,72 @@ def test_membrane_implicit_rows_are_their_own_comparison(tmp_path):
     assert m["all"]["scipy"] == pytest.approx(2.0)     # the iterative row at the same tolerance is in the comparison
     md = report.markdown(doc, "x-")
     assert "bench/baseline.NumpyMembrane" in md and f"{MEMBRANE_MODEL}, tol 1e-05" in md
+
+
+def _cli(module, *args, cwd=None):
+    from bench.report import REPO
+    return subprocess.run([sys.executable, "-m", module, *args], capture_output=True, text=True, timeout=120,
+                          cwd=cwd, env=dict(__import__("os").environ, PYTHONPATH=str(REPO)))
+
+
+def _one_error_line(r, prog) -> str:
+    assert r.returncode == 2, (r.stdout, r.stderr)
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"{prog}: error: "), r.stderr
+    assert r.stdout == ""
+    return lines[0]
+
+
+def _tree(root: Path) -> dict:
+    return {str(p.relative_to(root)): p.read_bytes() if p.is_file() else None for p in sorted(root.rglob("*"))}
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["results/raw/mistyped"], "RAW_DIR results/raw/mistyped: no such directory; give a raw directory written by "
+                               "python -m bench"),
+    (["results/raw/empty"], "RAW_DIR results/raw/empty holds none of run.json, bench-t2-f64.json"),
+    (["results/raw/notes.txt"], "RAW_DIR results/raw/notes.txt: not a directory"),
+    (["raw", "--out", "results/latest.md"], "--out results/latest.md: {t}/results/latest.md is a file, not a directory"),
+    (["raw", "--out", "/proc/bench"], "--out /proc/bench: cannot create a file in /proc"),
+    (["raw", "--against", "nowhere.json"], "--against nowhere.json: cannot read it (No such file or directory)"),
+    (["raw", "--frobnicate"], "unrecognized arguments: --frobnicate (see 'python -m bench.report --help')"),
+])
+def test_report_refuses_bad_arguments_in_one_line_and_writes_nothing(tmp_path, args, needle):
+    """A mistyped RAW_DIR used to be rendered as an empty run over <grandparent>/<name>.* and latest.*."""
+    _synthetic_raw(tmp_path)
+    (tmp_path / "results" / "raw" / "empty").mkdir(parents=True)
+    (tmp_path / "results" / "raw" / "notes.txt").write_text("notes")
+    (tmp_path / "results" / "latest.md").write_text("the latest report")
+    before = _tree(tmp_path)
+    r = _cli("bench.report", *args, cwd=tmp_path)
+    assert needle.format(t=tmp_path) in _one_error_line(r, "python -m bench.report")
+    assert _tree(tmp_path) == before
+
+
+def test_report_of_a_raw_directory_still_writes_it(tmp_path):
+    raw = _synthetic_raw(tmp_path)
+    r = _cli("bench.report", str(raw), "--out", str(tmp_path / "out"), "--no-latest")
+    assert r.returncode == 0, r.stderr
+    assert sorted(p.name for p in (tmp_path / "out").iterdir())[:2] == ["raw-cost_vs_E.png", "raw-cost_vs_N.png"]
+    assert (tmp_path / "out" / "raw.md").exists() and not (tmp_path / "out" / "latest.md").exists()
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["--out", "FILE"], "--out FILE: {t}/FILE is a file, not a directory; give a writable directory"),
+    (["--out", "FILE/sub"], "--out FILE/sub: {t}/FILE is a file, not a directory"),
+    (["--out", "/proc/bench"], "--out /proc/bench: cannot create a file in /proc"),
+    (["--only", "checks", "--skip", "checks"], "--only checks and --skip checks leave no part to run; parts: checks, "),
+    (["--quick", "--only", "t2-f32"], "--quick times the t2-f64 process only; run t2-f32 without --quick"),
+    (["--quick", "--skip", "checks,t2-f64,startup,headline"], "leave no part to run (--quick leaves out t1-f64, "
+                                                              "t2-f32)"),
+    (["--skip", "nonsense"], "--skip: unknown part(s) nonsense; valid: checks,"),
+])
+def test_bench_refuses_bad_arguments_in_one_line_and_writes_nothing(tmp_path, args, needle):
+    """--out naming a file (a traceback), or parts that leave nothing to run (an empty report over
+    latest.*), are bad input: one line, exit 2, before anything is written."""
+    (tmp_path / "FILE").write_text("not a directory")
+    out = [] if "--out" in args else ["--out", str(tmp_path / "results")]
+    r = _cli("bench", *args, *out, cwd=tmp_path)
+    assert needle.format(t=tmp_path) in _one_error_line(r, "python -m bench")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["FILE"] and (tmp_path / "FILE").read_text() == "not a directory"
+

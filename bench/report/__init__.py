@@ -84,11 +84,18 @@ def against_text(doc: dict, ref: dict, ref_name: str) -> tuple:
     return lines, outside
 
 
+RAW_INPUTS = ("run.json", *(f"bench-{c}.json" for c in CONFIGS), *(f"startup-{k}.json" for k in STARTUP_RUNS),
+              "headline.json")  # what a raw directory of python -m bench holds (any may be missing, not all)
+
+
 def main(argv=None) -> int:
     """``python -m bench.report RAW_DIR [--out DIR]``: re-render the report of a run from its raw
-    directory (bench/results/raw/<timestamp>)."""
-    import argparse
-    ap = argparse.ArgumentParser(prog="python -m bench.report", description=main.__doc__.split("\n")[0])
+    directory (bench/results/raw/<timestamp>). Bad arguments (a RAW_DIR that is not a raw
+    directory, an --out that cannot be written, an --against that cannot be read): one line,
+    exit status 2, nothing written."""
+    from bench.output import Parser, out_dir_problem, usage_error
+    prog = "python -m bench.report"
+    ap = Parser(prog=prog, description=main.__doc__.split("\n")[0])
     ap.add_argument("raw", help="a raw directory written by python -m bench")
     ap.add_argument("--out", help="output directory (default: two levels above RAW_DIR, i.e. bench/results)")
     ap.add_argument("--no-latest", action="store_true", help="do not overwrite the latest.* copies")
@@ -100,18 +107,33 @@ def main(argv=None) -> int:
                          f"report.*, which the README shows); nothing else is written")
     args = ap.parse_args(argv)
     raw = Path(args.raw).resolve()
-    doc = build(raw)
-    if args.reference:
-        paths = write(doc, REFERENCE_DIR, "report", latest=False)
-    else:
-        paths = write(doc, Path(args.out) if args.out else raw.parent.parent, raw.name, latest=not args.no_latest)
-    print(paths["md"])
+    if not raw.is_dir():
+        return usage_error(prog, f"RAW_DIR {args.raw}: {'not a directory' if raw.exists() else 'no such directory'}; "
+                                 f"give a raw directory written by python -m bench (bench/results/raw/<timestamp>)")
+    if not any((raw / name).is_file() for name in RAW_INPUTS):
+        return usage_error(prog, f"RAW_DIR {args.raw} holds none of {', '.join(RAW_INPUTS)}: not a raw directory "
+                                 f"of python -m bench (bench/results/raw/<timestamp>)")
+    out = REFERENCE_DIR if args.reference else (Path(args.out) if args.out else raw.parent.parent)
+    problem = out_dir_problem(out)
+    if problem:
+        return usage_error(prog, f"{'--out ' + args.out if args.out else 'the output directory ' + str(out)}: "
+                                 f"{problem}; give a writable directory with --out")
+    ref = None
     if args.against:
         try:
             ref = json.loads(Path(args.against).read_text())
+            if not isinstance(ref, dict):
+                raise ValueError("not a report document (a JSON object)")
         except (OSError, ValueError) as exc:
-            print(f"--against: cannot read {args.against}: {exc}")
-            return 2
+            return usage_error(prog, f"--against {args.against}: cannot read it ({getattr(exc, 'strerror', None) or exc}); "
+                                     f"give a report's .json, e.g. bench/reference/report.json")
+    doc = build(raw)
+    if args.reference:
+        paths = write(doc, out, "report", latest=False)
+    else:
+        paths = write(doc, out, raw.name, latest=not args.no_latest)
+    print(paths["md"])
+    if ref is not None:
         lines, outside = against_text(doc, ref, args.against)
         print("\n".join(lines))
         return 1 if outside else 0
