@@ -315,3 +315,16 @@ def test_bench_refuses_bad_arguments_in_one_line_and_writes_nothing(tmp_path, ar
     assert needle.format(t=tmp_path) in _one_error_line(r, "python -m bench")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["FILE"] and (tmp_path / "FILE").read_text() == "not a directory"
 
+
+def test_quick_report_says_the_rows_it_skips_by_design_are_skipped():
+    """--quick does not run t2-f32 (bench/config.QUICK_SKIPS): its targets are 'skipped by --quick',
+    not 'needs the peers'; a full run without a contender's rows still points at the peers."""
+    import tempfile
+    with tempfile.TemporaryDirectory() as d:
+        doc = report.build(_synthetic_raw(Path(d)))
+    assert doc["profile"] == "quick" and "bench-t2-f32.json" in doc["missing"]
+    f32 = [t for t in doc["targets"] if t["name"].startswith("explicit step") and t["name"].endswith("t2-f32")]
+    assert f32 and all(t["measured"] == "not measured (skipped by --quick: t2-f32 runs without it)" for t in f32)
+    doc["profile"] = "full"
+    f32 = [t for t in report.targets(doc) if t["name"].startswith("explicit step") and t["name"].endswith("t2-f32")]
+    assert all(t["measured"] == "not measured (needs the peers: pip install -e '.[peers]')" for t in f32)
