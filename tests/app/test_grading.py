@@ -72,6 +72,51 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, args, needle):
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.parametrize("lesson,folder,needle", [
+    ("springs", "/proc/ex", "DIR /proc/ex: cannot write the templates there (cannot create a file in /proc/ex: "),
+    ("all", "blocker/ex", "DIR blocker/ex: cannot write the templates there (blocker is a file, not a directory); "
+                          "give a folder you can write to"),
+    ("springs", "read-only/ex", "DIR read-only/ex: cannot write the templates there (directory "),
+])
+def test_a_folder_that_cannot_receive_the_templates_is_one_line_exit_2_and_nothing_written(tmp_path, lesson, folder,
+                                                                                           needle):
+    """It was an internal error (exit 1) once the folder's creation failed."""
+    (tmp_path / "blocker").write_text("a file where a folder is expected")
+    (tmp_path / "read-only").mkdir(mode=0o555)
+    if folder.startswith("read-only") and os.access(tmp_path / "read-only", os.W_OK):
+        pytest.skip("root writes into a read-only folder (the /proc case covers a folder that refuses files)")
+    r = lessons_cli("exercise", lesson, folder, cwd=tmp_path)
+    assert r.returncode == 2, (r.stdout, r.stderr)
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"python -m lessons: error: {needle}"), r.stderr
+    assert r.stdout == "" and sorted(p.name for p in tmp_path.rglob("*")) == ["blocker", "read-only"]
+
+
+def test_templates_are_written_all_or_none(tmp_path, monkeypatch):
+    """Missing folders are created; a write that fails (a full disk) leaves neither templates nor folders."""
+    import errno
+    import io
+
+    from lessons.app.cli import OutputFailed
+    from lessons.app.exercises import write_template
+    from lessons.app.outfile import OutputFile, OutputWriteError
+    monkeypatch.chdir(tmp_path)
+    assert write_template(["springs", "new/deeper/ex"], io.StringIO()) == 0
+    assert sorted(p.name for p in (tmp_path / "new" / "deeper" / "ex").iterdir()) == ["springs.py"]
+    write = OutputFile.write_bytes
+
+    def write_bytes(self, data):
+        if self.path.name == "bending.py":
+            self.discard()
+            raise OutputWriteError(errno.ENOSPC, "No space left on device after 0 of 10 bytes")
+        return write(self, data)
+    monkeypatch.setattr(OutputFile, "write_bytes", write_bytes)
+    with pytest.raises(OutputFailed, match=r"^DIR full/ex: could not write the templates \(No space left on device "
+                                           r"after 0 of 10 bytes\); nothing is left there$"):
+        write_template(["all", "full/ex"], io.StringIO())
+    assert not (tmp_path / "full").exists()
+
+
 def test_the_template_as_written_fails_with_one_line_per_function(tmp_path):
     assert lessons_cli("exercise", "all", "ex", cwd=tmp_path).returncode == 0
     r = lessons_cli("check", "all", "--solution", "ex", "--results", "out.json", cwd=tmp_path)
