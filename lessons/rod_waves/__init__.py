@@ -20,7 +20,9 @@ class RodWavesConfig:
     E: float = param(1.0, "Young's modulus of the rod (1D: force per unit strain)", "N", ge=1e-6, le=1e12)
     rho: float = param(1.0, "linear density of the rod", "kg/m", ge=1e-6, le=1e6)
     nodes: int = param(1001, "nodes on the rod of rest length 1 m (h = 1/(nodes-1))", ge=101, le=200001)
-    cfl: float = param(0.5, "CFL number nu = c dt / h for runs that do not sweep it", gt=0, le=1000)
+    cfl: float = param(0.5, "CFL number nu = c dt / h of stage 2's left-moving pulse and d'Alembert runs (the runs "
+                       "that do not sweep it); at most 1, symplectic Euler's stability limit on the rod, which stage 3 "
+                       "crosses on purpose", gt=0, le=1)
     width: float = param(None, "Gaussian pulse width sigma, in node spacings (default: 1 cm, i.e. 10 spacings at the "
                          "default 1001 nodes and more on finer grids, where a fixed count of spacings would disperse "
                          "over the more spacings it travels; at least 10 spacings on grids coarser than 1 mm; under "

@@ -58,7 +58,9 @@ def test_failed_experiment_gives_exit_1_and_is_in_results(tmp_path):
     (["run", "rod-waves", "--rho", "0"], "--rho must be ≥ 1e-06"),
     (["run", "rod-waves", "--rho", "-3"], "--rho must be ≥ 1e-06"),
     (["run", "springs", "--rho", "1e-300"], "--rho must be ≥ 1e-06 and ≤ 1e+06 (got 1e-300)"),
-    (["run", "rod-waves", "--cfl", "0"], "--cfl must be > 0 and ≤ 1000"),
+    (["run", "rod-waves", "--cfl", "0"], "--cfl must be > 0 and ≤ 1 (got 0.0)"),
+    (["run", "rod-waves", "--cfl", "50"], "--cfl must be > 0 and ≤ 1 (got 50.0)"),  # was run at 1, recorded as 50
+    (["run", "rod-waves", "--cfl", "1.0001"], "--cfl must be > 0 and ≤ 1 (got 1.0001)"),
     (["run", "rod-waves", "--cfl", "nan"], "--cfl must be a finite number"),
     (["run", "rod-waves", "--cfl", "-0.5"], "--cfl must be > 0"),
     (["run", "rod-waves", "--nodes", "2"], "--nodes must be ≥ 101"),
