@@ -18,7 +18,8 @@ The recordings start playing when opened; for pictures that come out the same ev
 time cursor is first paused at --time (default: the end of the timeline the viewer opens on,
 where every entity shows its last state), and each picture is taken once the window is steady
 (two identical frames in a row). --time playing leaves playback running and catches a moment.
-Exit codes: 0 written, 1 the viewer could not run (the message says what is missing), 2 bad input.
+Exit codes: 0 written, 1 the viewer could not run (the message says what is missing), 2 bad input
+(a recording that is missing or that rerun's reader cannot read: corrupted, truncated, not a recording).
 """
 from __future__ import annotations
 
@@ -30,6 +31,7 @@ from pathlib import Path
 
 from .screenshots import png_size
 from .viewer import HeadlessViewer
+from .viewer_processes import unreadable_recording
 from .viewer_requirements import ViewerUnavailable
 
 
@@ -188,6 +190,12 @@ def main(argv: list[str] | None = None) -> int:
     if absent:
         print(f"python -m lessons.tools.pictures: no such recording: {', '.join(absent)}", file=sys.stderr)
         return 2
+    for rrd in rrds:  # the viewer would wait out --timeout on a file it cannot read: refused at once
+        problem = unreadable_recording(rrd)
+        if problem:
+            print(f"python -m lessons.tools.pictures: {rrd} is not a readable Rerun recording ({problem}); record it "
+                  f"again: python -m lessons run LESSON --record {rrd}", file=sys.stderr)
+            return 2
     out = Path(args.out)
     try:
         out.mkdir(parents=True, exist_ok=True)

@@ -25,6 +25,23 @@ _POINTER_MARGIN = 64  # pixels of X screen right of and below the window, where 
 _SETTLE_SIZE = 480  # longest side of the pictures settle() compares (cheaper than full size)
 
 
+def unreadable_recording(path: str | os.PathLike) -> str | None:
+    """Why ``path`` is not a recording the viewer can show (rerun's own reader fails on it: a
+    corrupted, truncated or foreign file; or it holds no data), in one line; None when it reads
+    to its end. The viewer itself would only wait for it to load. Reading takes milliseconds per MB."""
+    import warnings
+
+    from rerun.chunk import RrdReader
+    try:
+        with warnings.catch_warnings():  # e.g. "RRD file has no footer/manifest" (a truncated file)
+            warnings.simplefilter("ignore")
+            chunks = sum(1 for _ in RrdReader(str(path)).stream())
+    except Exception as exc:
+        text = " ".join(str(exc).split()) or type(exc).__name__
+        return re.sub(r"^Failed to read RRD file at .*?: ", "", text)
+    return None if chunks else "it holds no data"
+
+
 class ViewerTimeout(ViewerUnavailable):
     """The viewer stopped answering (a call took longer than ``call_timeout``); it was killed."""
 
