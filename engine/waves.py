@@ -33,6 +33,8 @@ from rest lags by half a step, an O(dt) error).
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from engine.analysis import fit_slope
@@ -188,14 +190,15 @@ def young_poisson(C: np.ndarray, axis: int = 0) -> tuple[float, float]:
 
 
 class ModeProbe:
-    """Amplitude of the standing-wave shape phi_i = cos(k (X_i - X0).n) p over a region.
+    """Amplitude of the standing-wave shape phi_i = cos(k (X_i - X0).n) p over a region (times
+    ``profile``_i, a lattice mode's amplitude at each vertex: BlochModes.profile).
 
     a(x) = sum_region m_i phi_i (x_i - X_i).p / sum_region m_i phi_i^2  (the mass-weighted
     least-squares amplitude of the shape), so a = A cos(w t) for the pure mode.
     """
 
     def __init__(self, X: np.ndarray, mass: np.ndarray, direction, polarization, k: float,
-                 origin, region: np.ndarray):
+                 origin, region: np.ndarray, profile: np.ndarray | None = None):
         X = np.asarray(X, dtype=np.float64)
         dim = X.shape[1]
         n = np.zeros(dim)
@@ -209,6 +212,8 @@ class ModeProbe:
         o[:od.size] = od
         self.n, self.p, self.k, self.origin = n, p, float(k), o
         self.phi = np.cos(self.k * (X - o) @ n)
+        if profile is not None:   # a lattice's own mode: its sublattices move by different amounts
+            self.phi = self.phi * np.asarray(profile, dtype=np.float64)
         self.region = np.flatnonzero(region)
         if self.region.size == 0:
             raise ValueError("ModeProbe: the measurement region is empty")
@@ -239,3 +244,93 @@ def phase_frequency(t: np.ndarray, a: np.ndarray, lo: float = -0.9, hi: float = 
     if keep.sum() < 3:
         raise ValueError("phase_frequency: fewer than 3 usable samples (run longer or sample more often)")
     return fit_slope(t[keep], np.arccos(r[keep]))
+
+
+def sublattice_keys(X: np.ndarray, periods) -> np.ndarray:
+    """(n, 2) integer keys of each vertex's position modulo the lattice translations ``periods``
+    (rows): vertices with equal keys are copies of one another (one sublattice)."""
+    frac = np.linalg.solve(np.asarray(periods, dtype=np.float64).T, np.asarray(X, dtype=np.float64)[:, :2].T).T
+    return np.round((frac - np.floor(frac + 1e-9)) * 1e6).astype(np.int64)
+
+
+@dataclass
+class BlochModes:
+    """The plane-wave modes of a periodic lattice at one wavevector (:func:`bloch_modes`): per branch,
+    ascending in w2, its w^2, its damping per unit mass c, and its mass-normalised amplitudes U
+    (branch, sublattice, dims); the sublattices' masses and keys (:func:`sublattice_keys`)."""
+    w2: np.ndarray
+    c: np.ndarray
+    U: np.ndarray
+    mass: np.ndarray
+    keys: np.ndarray
+    periods: np.ndarray
+
+    def branch(self, polarization) -> int:
+        """The branch whose motion is closest to every sublattice moving along ``polarization`` alike
+        (the wave a ModeProbe starts): the largest mass-weighted overlap."""
+        p = np.asarray(polarization, dtype=np.float64)
+        p = p / np.linalg.norm(p)
+        U, m = self.U, self.mass
+        overlap = np.abs(np.einsum("s,bsd,d->b", m, U, p)) ** 2 / np.einsum("s,bsd->b", m, np.abs(U) ** 2)
+        return int(np.argmax(overlap))
+
+    def profile(self, X: np.ndarray, branch: int, polarization) -> np.ndarray:
+        """(n,) the branch's amplitude along ``polarization`` at each vertex of X (a larger piece of
+        the same lattice), relative to its mass-weighted mean over the sublattices: the factor by
+        which the mode's displacement differs from vertex to vertex (1 where all sublattices move
+        alike)."""
+        p = np.asarray(polarization, dtype=np.float64)
+        a = self.U[branch] @ (p / np.linalg.norm(p))
+        a = a * np.exp(-1j * np.angle(a[np.argmax(np.abs(a))]))
+        if np.abs(a.imag).max() > 1e-9 * np.abs(a).max():
+            raise ValueError("BlochModes.profile: the branch's sublattices are out of phase (not a standing wave)")
+        a = a.real / (self.mass @ a.real / self.mass.sum())
+        index = {tuple(key): s for s, key in enumerate(self.keys)}
+        try:
+            return np.array([a[index[tuple(key)]] for key in sublattice_keys(X, self.periods)])
+        except KeyError:
+            raise ValueError("BlochModes.profile: X is not a piece of the same lattice") from None
+
+
+def bloch_modes(X: np.ndarray, mass: np.ndarray, periods, k, stiffness: np.ndarray,
+                damping: np.ndarray | None = None, dims: int = 2) -> BlochModes:
+    """The plane-wave modes of a periodic lattice at wavevector ``k``, read from a finite patch of it.
+
+    X (n, >= 2) rest positions, mass (n,) lumped masses, periods (2, 2) the lattice's translation
+    vectors (rows), ``stiffness`` and ``damping`` dense (3n, 3n) matrices of the patch at rest
+    (e.g. Energy.dense_hessian, dense_damping). Vertices whose positions differ by a translation
+    form one sublattice; one vertex of each, the nearest the patch's centre (so the patch must
+    reach a stencil beyond it), gives its row of the Bloch matrix
+
+        D(k)_{s s'} = sum_{j in s'} A[rep_s, j] exp(i k.(X_j - X_rep_s))         (in-plane dofs)
+
+    and a displacement U_s exp(i k.X_j) on sublattice s is a mode when w^2 M U = D_K U. With unequal
+    masses (the alternating grid's 4/3 and 2/3 of rho h^2) the wave is this mode, not the unit-mass
+    one. A branch's damping per unit mass is c = U^H D_C U (U mass-normalised; exact when D_C
+    commutes with the branch, e.g. proportional damping; 0 without ``damping``)."""
+    X = np.asarray(X, dtype=np.float64)
+    keys, label = np.unique(sublattice_keys(X, periods), axis=0, return_inverse=True)
+    label = label.ravel()
+    centre = X[:, :2].mean(axis=0)
+    dist = np.linalg.norm(X[:, :2] - centre, axis=1)
+    reps = [int(np.flatnonzero(label == s)[np.argmin(dist[label == s])]) for s in range(len(keys))]
+    phase = np.exp(1j * (X[:, :2] @ np.asarray(k, dtype=np.float64)))
+    ns = len(reps)
+
+    def bloch(A):
+        A = np.asarray(A).reshape(len(X), 3, len(X), 3)[:, :dims, :, :dims]
+        D = np.zeros((ns * dims, ns * dims), dtype=np.complex128)
+        for s, r in enumerate(reps):
+            row = A[r] * (phase / phase[r])[None, :, None]       # (dims, n, dims)
+            for t in range(ns):
+                D[s * dims:(s + 1) * dims, t * dims:(t + 1) * dims] = row[:, label == t, :].sum(axis=1)
+        return 0.5 * (D + D.conj().T)
+
+    m_sub = np.asarray(mass, dtype=np.float64)[reps]
+    m_half = np.repeat(np.sqrt(m_sub), dims)
+    w2, V = np.linalg.eigh(bloch(stiffness) / np.outer(m_half, m_half))
+    c = np.zeros_like(w2)
+    if damping is not None:
+        c = np.real(np.einsum("ib,ij,jb->b", V.conj(), bloch(damping) / np.outer(m_half, m_half), V))
+    return BlochModes(w2, c, (V / m_half[:, None]).T.reshape(-1, ns, dims), m_sub, keys,
+                      np.asarray(periods, dtype=np.float64))

@@ -5,7 +5,9 @@ every scheme then advances each mode's (q, dq/dt) by a 2x2 matrix per step (:fun
 so its stability, damping and phase error follow from that matrix alone. :class:`ModalReference`
 evolves an initial state of a rod mode by mode with those matrices and sums the modes again, an
 independent check of the kernels. :func:`symplectic_euler_growth` and
-:func:`backward_euler_damping_rate` are the per-step growth and the decay rate those matrices give.
+:func:`backward_euler_damping_rate` are the per-step growth and the decay rate those matrices give;
+:func:`backward_euler_damped_sequence` and :func:`velocity_verlet_damped_rates` the two schemes' maps
+of a damped mode.
 """
 from __future__ import annotations
 
@@ -122,3 +124,33 @@ def backward_euler_damping_rate(w: float, dt: float) -> float:
     step, W the true frequency): amplitude factor 1/sqrt(1 + (W dt)^2) = cos(w dt) per step, i.e.
     the decay rate -ln(cos(w dt))/dt."""
     return -math.log(math.cos(w * dt)) / dt
+
+
+# A damped mode q'' = -w^2 q - c q' (stiffness w2 = w^2 and damping c per unit mass, e.g. a proportionally
+# damped lattice's Bloch branch, engine.waves.bloch_modes): the maps of the two schemes the lessons damp.
+
+def backward_euler_damped_sequence(w2: float, c: float, dt: float, n: int) -> np.ndarray:
+    """q_j / q_0, j = 0..n, of a damped mode started from rest under backward Euler, whose Newton
+    system (M + dt C + dt^2 K) v+ = M v - dt K x is, mode by mode, v+ = (v - dt w2 q)/(1 + c dt + w2 dt^2),
+    q+ = q + dt v+."""
+    q, v, out = 1.0, 0.0, [1.0]
+    for _ in range(int(n)):
+        v = (v - dt * w2 * q) / (1.0 + c * dt + w2 * dt * dt)
+        q = q + dt * v
+        out.append(q)
+    return np.asarray(out)
+
+
+def velocity_verlet_damped_rates(w2: float, c: float, dt: float) -> tuple[float, float]:
+    """(w, gamma) of a damped mode under the engine's velocity Verlet, which takes the damping force at
+    the half-kicked velocity: v* = v + dt/2 a, q+ = q + dt v*, a+ = -w2 q+ - c v*, v+ = v* + dt/2 a+.
+    From the step map's complex eigenvalue z: w = |arg z|/dt, gamma = -ln|z|/dt."""
+    def step(s):
+        q, v, a = s
+        vh = v + 0.5 * dt * a
+        q1 = q + dt * vh
+        a1 = -w2 * q1 - c * vh
+        return np.array([q1, vh + 0.5 * dt * a1, a1])
+    lam = np.linalg.eigvals(np.column_stack([step(e) for e in np.eye(3)]))
+    z = lam[np.argmax(np.abs(lam.imag))]
+    return abs(math.atan2(z.imag, z.real)) / dt, -math.log(abs(z)) / dt

@@ -13,6 +13,7 @@ import numpy as np
 from engine import mesh as M
 from engine.energies.membrane import MembraneEnergy, lame
 from engine.model import Model
+from engine.waves import bloch_modes
 from lessons.app.blueprint import RunView
 
 from .. import _budget
@@ -92,6 +93,25 @@ def hanging_cloth(cfg, model: str = "baraff-witkin"):
     return built, m3
 
 
+PERIODS = {"one-way": np.eye(2), "alternating": 2.0 * np.eye(2)}   # the grids' translations (spacing 1 m)
+
+
+def lattice_wave(pattern: str, k_vec, polarization, build) -> tuple:
+    """(w^2, c, profile) of the plane wave of wavevector ``k_vec`` (1/m) on the infinite
+    right-triangle grid of ``pattern`` (spacing 1 m) whose motion is closest to ``polarization``:
+    its Bloch branch (engine.waves.bloch_modes), with the grid's real lumped masses, read from a
+    9 x 9 patch that ``build(m3)`` -> (Model, MembraneEnergy) turns into the stage's material. c, the
+    branch's damping per unit mass, is 0 without damping; profile(X) gives the mode's relative
+    amplitude at each vertex of a larger sheet of the same grid (ModeProbe's profile)."""
+    m3 = M.embed_3d(M.right_triangle_grid(9, 9, 8.0, 8.0, pattern))
+    model, energy = build(m3)
+    X = m3.vertices
+    damping = energy.dense_damping(X) if model.dampers else None
+    modes = bloch_modes(X, model.mass, PERIODS[pattern], k_vec, energy.dense_hessian(X, psd=False), damping)
+    b = modes.branch(polarization)
+    return float(modes.w2[b]), float(modes.c[b]), lambda Xs: modes.profile(Xs, b, polarization)
+
+
 def plane_speeds(Y: float, nu: float, rho: float) -> tuple:
     """(c_P, c_S) of the isotropic plane-stress membrane: sqrt(Y/((1 - nu^2) rho)), sqrt(mu/rho)."""
     mu, lam = lame(Y, nu)
@@ -156,10 +176,37 @@ def cloth_logger(m3: M.Mesh, energy, scale: float):
     return log
 
 
+# ------------------------------------------------------------------ the damped sheet's size (stage 5)
+
+EDGE_DECAY = 23.0   # the free edges' disturbance reaches the disc damped by exp(-23) = 1e-10
+
+
+def damped_margin(wavelength: float, damping_ratio: float) -> float:
+    """How far stage 5's sheet reaches beyond the disc (m, spacing 1 m). A free edge disturbs the
+    wave from the start; undamped, the disturbance travels a wavelength per period, and the margin of
+    two wavelengths keeps it out for the run (one period). Baraff-Witkin's damping k_d u_xx' also
+    diffuses it, with diffusivity k_d/rho = 2 ratio c/k, over the period T = 2 pi/(c k): to depth d
+    with weight exp(-d^2/(4 k_d T/rho)) = exp(-d^2 pi/(4 ratio wavelength^2)); the margin keeps that
+    below exp(-EDGE_DECAY): d = wavelength sqrt(4 EDGE_DECAY ratio/pi), 1.9 wavelengths at the
+    default ratio 0.05, 3.8 at 0.5."""
+    return wavelength * max(2.0, math.sqrt(4.0 * EDGE_DECAY * damping_ratio / math.pi))
+
+
+def damped_run_size(cfg) -> tuple[int, int]:
+    """(vertices per side, about how many velocity-Verlet steps) of stage 5's run: the explicit step
+    is cfl times the smaller of the stiffness' limit, about 0.577 sqrt(rho/k_s), and the damping's
+    2/c_max, with c_max about 12 k_d/rho on the alternating grid (measured 12.0), for one period."""
+    lam, k = float(cfg.wavelength), 2 * math.pi / cfg.wavelength
+    kd = 2 * cfg.damping_ratio * math.sqrt(cfg.Y * cfg.rho) / k
+    dt = cfg.cfl * min(0.577 * math.sqrt(cfg.rho / cfg.Y), 2.0 / (12.0 * kd / cfg.rho))
+    n = 2 * int(math.ceil(0.15 * lam + damped_margin(lam, cfg.damping_ratio) + 2.0)) + 1
+    return n, int(math.ceil(lam * math.sqrt(cfg.rho / cfg.Y) / dt))
+
+
 # ------------------------------------------------------------------ estimates and budget
 
 # seconds of each stage at the defaults on the reference 2-thread CPU, and how they scale
-STAGE_SECONDS = {1: 1.0, 2: 2.0, 3: 4.0, 4: 3.0, 5: 6.0}
+STAGE_SECONDS = {1: 1.0, 2: 2.0, 3: 4.0, 4: 3.0, 5: 9.5}
 
 
 def stage_seconds(cfg, stage: int) -> float:
@@ -171,15 +218,17 @@ def stage_seconds(cfg, stage: int) -> float:
         return STAGE_SECONDS[3] * (cfg.wavelength / d.wavelength) ** 3 * d.cfl / cfg.cfl
     if stage == 4:   # backward-Euler steps over the settling time on an n x n cloth
         return STAGE_SECONDS[4] * (cfg.cloth_n / d.cloth_n) ** 2 * cfg.settle_time / d.settle_time
-    if stage == 5:   # a sheet of (wavelength)^2 vertices, one period of steps ~ wavelength / cfl
-        return STAGE_SECONDS[5] * (cfg.wavelength / d.wavelength) ** 3 * d.cfl / cfg.cfl
+    if stage == 5:   # the damped sheet's vertices times its steps
+        (n, steps), (n0, steps0) = damped_run_size(cfg), damped_run_size(d)
+        return STAGE_SECONDS[5] * (n * n * steps) / (n0 * n0 * steps0)
     return STAGE_SECONDS.get(stage, 0.0)
 
 
 BUDGET = {2: StageCost("--strip-cells", "use fewer --strip-cells"),
           3: StageCost("--wavelength, --cfl", "use a shorter --wavelength or a larger --cfl"),
           4: StageCost("--cloth-n, --settle-time", "use a smaller --cloth-n or a shorter --settle-time"),
-          5: StageCost("--wavelength, --cfl", "use a shorter --wavelength or a larger --cfl")}
+          5: StageCost("--wavelength, --cfl, --damping-ratio",
+                       "use a shorter --wavelength, a larger --cfl or a smaller --damping-ratio")}
 
 
 def check_work(cfg) -> None:
@@ -208,16 +257,17 @@ def fit_decay(t: np.ndarray, a: np.ndarray, w0: float) -> tuple:
 
 
 def damped_wave(ctx, name: str, model: Model, m3: M.Mesh, k: float, ctr, region, dt: float, n_steps: int,
-                integrator: str, label: str) -> tuple:
-    """A standing P wave along x (the warp u) started from rest on a damped Baraff-Witkin sheet;
-    returns (times, amplitudes) read over ``region`` by engine.waves.ModeProbe."""
+                integrator: str, label: str, profile=None) -> tuple:
+    """A standing P wave along x (the warp u) started from rest on a damped Baraff-Witkin sheet, each
+    vertex's displacement times ``profile`` (the lattice mode's, lattice_wave); returns (times,
+    amplitudes) read over ``region`` by engine.waves.ModeProbe."""
     from engine.waves import ModeProbe
 
     from .._scene import simulate
     from .._waves import DRAWN_AMPLITUDE, sheet_drawer
 
     cfg = ctx.cfg
-    probe = ModeProbe(model.X, model.mass, np.array([1.0, 0.0]), np.array([1.0, 0.0]), k, ctr, region)
+    probe = ModeProbe(model.X, model.mass, np.array([1.0, 0.0]), np.array([1.0, 0.0]), k, ctr, region, profile)
     A = cfg.strain / k
     state = model.make_state(model.X + probe.displacement(A))
     times, amps = [], []
