@@ -264,9 +264,15 @@ def text_table(experiments: list[Experiment], width: int = 60) -> str:
     return "\n".join(out)
 
 
+MARKDOWN_ORDER = (4, 1, 2, 3, 0)   # result, theory, measured, tolerance, claim
+
+
 def markdown_table(experiments: list[Experiment]) -> str:
-    rows = _rows(experiments)
-    out = ["| " + " | ".join(HEADER) + " |", "|" + "---|" * len(HEADER)]
+    """The stage's table for the viewer: the claim, the one column of unbounded width, comes last, so
+    that a view narrower than the table cuts a claim's end and never the numbers or the verdict."""
+    rows = [[r[i] for i in MARKDOWN_ORDER] for r in _rows(experiments)]
+    header = [HEADER[i] for i in MARKDOWN_ORDER]
+    out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     out += ["| " + " | ".join(c.replace("|", "\\|") for c in r) + " |" for r in rows]
     return "\n".join(out)
 

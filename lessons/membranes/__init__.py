@@ -54,13 +54,14 @@ LESSON = Lesson(
     id="membranes",
     title="Membranes: Baraff-Witkin's triangles and a continuum triangle against springs",
     summary="Energies on triangles instead of edges: their derivatives and the patch test, Young's modulus and "
-            "Poisson's ratio as set on any mesh (springs fix Poisson's ratio), wave speeds that do not depend on "
-            "direction, and a Baraff-Witkin cloth under backward Euler at large steps.",
+            "Poisson's ratio as set on any mesh (springs fix Poisson's ratio), wave speeds whose dependence on "
+            "direction vanishes as the mesh is refined, a Baraff-Witkin cloth under backward Euler at large steps "
+            "and the decay of a damped wave.",
     config=MembranesConfig,
     stages=narrated_stages(__name__, [
         ("energies on triangles: derivatives and the patch test", stages.stage_triangles),
         ("static stretch: any Poisson's ratio, on any mesh", stages.stage_stretch),
-        ("wave speeds that do not depend on direction", stages.stage_waves),
+        ("wave speeds and direction: isotropic as the mesh is refined, unlike springs", stages.stage_waves),
         ("a Baraff-Witkin cloth under backward Euler", stages.stage_hanging),
         ("Baraff-Witkin damping: the decay of a mode", stages.stage_damping),
     ]),

@@ -64,18 +64,20 @@ def uniaxial_theory(model: str, Y_or_ks: float, nu: float, exx: float) -> tuple:
     return -eyy / exx + 0.0, (1.0 + exx) * Y_or_ks * Exx / exx   # + 0.0: no "-0" in the tables
 
 
-def pull(ctx, name: str, label: str, m3: M.Mesh, kind: str, build, unsolved: list, draw: bool = False):
-    """Clamp the strip's ends, stretch it by cfg.strain, solve the statics; returns (nu, the
-    measured modulus F/(w eps_xx), eps_xx). ``build(m3, pinned)`` makes the model."""
+def pull(ctx, name: str, label: str, m3: M.Mesh, kind: str, build, unsolved: list, draw: bool = False,
+         strain: float | None = None):
+    """Clamp the strip's ends, stretch it by ``strain`` (default cfg.strain), solve the statics; returns
+    (nu, the measured modulus F/(w eps_xx), eps_xx). ``build(m3, pinned)`` makes the model."""
     cfg = ctx.cfg
-    s = stretch_strip(m3, build, cfg.strain, end_width(kind), STRETCH_TOL)
+    strain = cfg.strain if strain is None else strain
+    s = stretch_strip(m3, build, strain, end_width(kind), STRETCH_TOL)
     res, exx, eyy, F, width = s["res"], s["exx"], s["eyy"], s["F"], s["width"]
     if not res.converged:
         unsolved.append(f"{label}: the static solve stopped at residual {res.residual:.2g} > {STRETCH_TOL:g} after "
                         f"{res.iterations} Newton steps ({res.message})")
     ctx.progress(f"{label}: {res.iterations} Newton steps, eps_xx {exx:.6g}, eps_yy {eyy:.6g}, pull {F:.6g} N")
     if draw and ctx.rec.enabled:
-        draw_strip(ctx.rec, name, label, m3, m3.vertices + s["u"], s["u"], cfg.strain)
+        draw_strip(ctx.rec, name, label, m3, m3.vertices + s["u"], s["u"], strain)
     return -eyy / exx + 0.0, F / (width * exx), exx
 
 
@@ -96,20 +98,37 @@ def hanging_cloth(cfg, model: str = "baraff-witkin"):
 PERIODS = {"one-way": np.eye(2), "alternating": 2.0 * np.eye(2)}   # the grids' translations (spacing 1 m)
 
 
-def lattice_wave(pattern: str, k_vec, polarization, build) -> tuple:
-    """(w^2, c, profile) of the plane wave of wavevector ``k_vec`` (1/m) on the infinite
-    right-triangle grid of ``pattern`` (spacing 1 m) whose motion is closest to ``polarization``:
-    its Bloch branch (engine.waves.bloch_modes), with the grid's real lumped masses, read from a
-    9 x 9 patch that ``build(m3)`` -> (Model, MembraneEnergy) turns into the stage's material. c, the
-    branch's damping per unit mass, is 0 without damping; profile(X) gives the mode's relative
-    amplitude at each vertex of a larger sheet of the same grid (ModeProbe's profile)."""
+def lattice_modes(pattern: str, build):
+    """k_vec -> engine.waves.BlochModes of the infinite right-triangle grid of ``pattern`` (spacing
+    1 m) at wavevector k_vec (1/m), with the grid's real lumped masses, read from one 9 x 9 patch that
+    ``build(m3)`` -> (Model, MembraneEnergy) turns into the stage's material (damped when it is)."""
     m3 = M.embed_3d(M.right_triangle_grid(9, 9, 8.0, 8.0, pattern))
     model, energy = build(m3)
     X = m3.vertices
+    stiffness = energy.dense_hessian(X, psd=False)
     damping = energy.dense_damping(X) if model.dampers else None
-    modes = bloch_modes(X, model.mass, PERIODS[pattern], k_vec, energy.dense_hessian(X, psd=False), damping)
+    return lambda k_vec: bloch_modes(X, model.mass, PERIODS[pattern], k_vec, stiffness, damping)
+
+
+def lattice_wave(pattern: str, k_vec, polarization, build) -> tuple:
+    """(w^2, c, profile) of the plane wave of wavevector ``k_vec`` on the grid of ``pattern``
+    (:func:`lattice_modes`) whose motion is closest to ``polarization``: its Bloch branch. c, the
+    branch's damping per unit mass, is 0 without damping; profile(X) gives the mode's relative
+    amplitude at each vertex of a larger sheet of the same grid (ModeProbe's profile)."""
+    modes = lattice_modes(pattern, build)(k_vec)
     b = modes.branch(polarization)
     return float(modes.w2[b]), float(modes.c[b]), lambda Xs: modes.profile(Xs, b, polarization)
+
+
+def lattice_speed(grid, k: float, direction, polarization, method: str | None = None, dt: float = 0.0) -> float:
+    """The phase speed w/k of the grid's plane wave (``grid``: :func:`lattice_modes`) of wavenumber k
+    along ``direction`` whose motion is closest to ``polarization``; under ``method``'s step dt
+    (engine.theory.schemes.scheme_frequency) when given, else the grid's own."""
+    from engine.theory.schemes import scheme_frequency
+
+    modes = grid(k * np.asarray(direction, dtype=np.float64))
+    w2 = float(modes.w2[modes.branch(polarization)])
+    return (scheme_frequency(method, w2, dt) if method else math.sqrt(w2)) / k
 
 
 def plane_speeds(Y: float, nu: float, rho: float) -> tuple:
