@@ -37,12 +37,15 @@ class RunView:
     lesson's), what its energy plot shows (``"split"``: kinetic, potential and total; ``"drift"``:
     the relative change of the total, for runs about conservation; None: no plot) and its ``span``
     on the progress timeline in simulated seconds (default: the run's planned duration; give the
-    stage's longest run's to keep runs of different lengths in step)."""
+    stage's longest run's to keep runs of different lengths in step). ``plot`` (entity, title): a plot
+    of the run's own series under ``<run>/<entity>`` (logged with Recorder.scalar_series) in place
+    of the energy plot."""
 
     label: str | None = None
     camera: str | None = None
     energy: str | None = "split"
     span: float | None = None
+    plot: tuple[str, str] | None = None
 
     def __post_init__(self):
         if self.camera is not None and self.camera not in CAMERAS:
@@ -70,6 +73,8 @@ class RunPlan:
     aspect: float | None = None       # width/height its camera was placed for (set by the layout)
     frame_bytes: int = 0              # bytes of the first frame's arrays
     has_energy: bool = False
+    plot: tuple[str, str] | None = None   # RunView.plot
+    has_series: bool = False              # logged a series of its own (scalar_series)
     has_events: bool = False
     keys: dict = field(default_factory=dict)   # quantity -> colour key text
     scales: dict = field(default_factory=dict)  # quantity -> fixed colour scale
@@ -163,7 +168,8 @@ def stage_view(stage: StagePlan) -> rrb.Container:
     side_by_side = strip or cell_w > 1.8 * cell_h  # a wide cell: the plot beside the scene, not under it
     cells = []
     for run in runs:
-        has_plot = run.energy is not None and run.has_energy
+        own_plot = run.plot is not None and run.has_series
+        has_plot = own_plot or (run.energy is not None and run.has_energy)
         scene_w = cell_w * (0.675 if (has_plot and side_by_side) else 1.0)
         scene_h = cell_h * (0.7 if (has_plot and not side_by_side) else 1.0) - 24  # title bar
         key = "; ".join(run.keys.values())
@@ -173,7 +179,10 @@ def stage_view(stage: StagePlan) -> rrb.Container:
         if not has_plot:
             cells.append(scene)
             continue
-        if run.energy == "drift":
+        if own_plot:
+            plot = rrb.TimeSeriesView(origin=f"{run.entity}/{run.plot[0]}", name=run.plot[1],
+                                      plot_legend=rrb.PlotLegend(visible=False))
+        elif run.energy == "drift":
             plot = rrb.TimeSeriesView(origin=f"{run.entity}/energy_change", name=DRIFT_PLOT_NAME,
                                       plot_legend=rrb.PlotLegend(visible=False))
         else:

@@ -248,7 +248,7 @@ class Recorder(RecorderGeometry, RecorderEnergies, NullRecorder):
         if span is None and n_steps and dt:
             span = n_steps * dt
         self._run = RunPlan(name=name, entity=f"/{self._prefix}", label=view.label or name,
-                            camera=view.camera or self.default_camera, energy=view.energy,
+                            camera=view.camera or self.default_camera, energy=view.energy, plot=view.plot,
                             span=span if span and span > 0 else None, n_steps=n_steps,
                             duration=n_steps * dt if n_steps and dt else None)
         self._energy_dt = float(dt or 0.0)

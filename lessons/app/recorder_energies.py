@@ -15,7 +15,9 @@ ENERGY_SAMPLES = 2000       # energy samples per series and run at most (min and
 RAW_ENERGY_SAMPLES = 4 * ENERGY_SAMPLES  # samples held before the bin width is fixed
 # the energy series: name and colour (the plots name them in their titles, with no legend)
 SERIES = {"kinetic": ("kinetic", (90, 200, 90)), "potential": ("potential", (90, 150, 255)),
-          "total": ("total", (235, 235, 235)), "relative": ("(E - E1) / |E1|", (255, 190, 60))}
+          "total": ("total", (235, 235, 235)), "relative": ("(E - E1) / |E1|", (255, 190, 60)),
+          "log10_distance": ("log10 distance / size", (255, 190, 60)),
+          "log10_excess": ("log10 energy above equilibrium / at start", (235, 235, 235))}
 
 
 class RecorderEnergies:
@@ -39,6 +41,8 @@ class RecorderEnergies:
         if values.size == 0:
             return
         path = self._path(entity)
+        if self._run is not None and not entity.startswith("energy"):
+            self._run.has_series = True
         if path not in self._static_done:
             name, color = SERIES.get(entity.rsplit("/", 1)[-1], (entity.rsplit("/", 1)[-1], (200, 200, 200)))
             self._rec.log(path, rr.SeriesLines(colors=[color], names=[name], widths=[1.5],

@@ -109,7 +109,21 @@ def test_no_view_is_empty_and_events_are_shown_where_they_happen(layouts, lesson
         if stage.has_events:
             assert any(p.endswith("/events") and p.startswith(f"/stage{stage.index}/") for p in info)
         plots = views(tab, "TimeSeries")
-        assert all(("energy" in p.origin) for p in plots)
+        own = {f"{r.entity}/{r.plot[0]}" for r in stage.runs if r.plot}
+        assert all(("energy" in p.origin) or p.origin in own for p in plots)
+
+
+def test_the_hanging_cloth_plots_what_settles_on_a_log_scale(layouts):
+    """membranes stage 4: the cloth looks still after a few percent of the playback, while its distance
+    to the static equilibrium falls by orders of magnitude: each run's plot shows that (log10), not the
+    energy, whose change is invisible on a linear axis."""
+    _, rec, bp, info = layouts["membranes"]
+    stage = next(s for s in rec.stages if s.index == 4)
+    tab = bp.root_container.contents[rec.stages.index(stage)]
+    plots = views(tab, "TimeSeries")
+    assert len(plots) == 2 and all(p.origin.endswith("/settling") and p.name.startswith("log10") for p in plots)
+    for p in plots:
+        assert {f"{p.origin}/log10_distance", f"{p.origin}/log10_excess"} <= set(info), p.origin
 
 
 @pytest.mark.parametrize("lesson_id", LESSON_IDS)
