@@ -43,7 +43,8 @@ class ExplicitImplicitConfig:
     conv_time: float = param(0.05, "stage 2: simulated time of the convergence runs (falling from rest)", "s",
                              gt=0, le=1)
     speed_n: int = param(32, "stage 3: vertices per side of the cloth of the timing runs", ge=8, le=96)
-    E_soft: float = param(10.0, "stage 3: softest stretching modulus of the sweep", "N/m", gt=0)
+    E_soft: float = param(10.0, "stage 3: softest stretching modulus of the sweep (at least rho g / 0.1: the "
+                          "cloth's weight may stretch it by 10% at most)", "N/m", gt=0, le=1e8)
     E_stiff: float = param(1e5, "stage 3: stiffest stretching modulus of the sweep", "N/m", gt=0, le=1e8)
     E_values: int = param(5, "stage 3: moduli in the sweep (log-spaced)", ge=3, le=9)
     frame_dt: float = param(1 / 60, "stage 3: backward Euler's time step (one video frame)", "s", gt=0, le=0.1)
@@ -57,12 +58,14 @@ class ExplicitImplicitConfig:
             raise ParameterError(f"--huge must be larger than --big (got {self.huge} <= {self.big})")
         if self.E_stiff <= self.E_soft:
             raise ParameterError(f"--E-stiff must be larger than --E-soft (got {self.E_stiff} <= {self.E_soft})")
-        sag = self.rho * 9.81 / self.E  # the strain of the 1 m cloth's weight, rho g L / E
-        if sag > scene.MAX_WEIGHT_STRAIN:
-            raise ParameterError(
-                f"--E {self.E:g} with --rho {self.rho:g}: the cloth's own weight would stretch it by rho g L / E = "
-                f"{sag:.2g}, over {scene.MAX_WEIGHT_STRAIN:g}; the lesson's limits and modes are taken about a hanging "
-                f"cloth that barely stretches: use --E >= {self.rho * 9.81 / scene.MAX_WEIGHT_STRAIN:.3g} N/m")
+        for option, E in (("--E", self.E), ("--E-soft", self.E_soft)):  # --E-soft: the sweep's softest cloth
+            sag = self.rho * 9.81 / E  # the strain of the 1 m cloth's weight, rho g L / E
+            if sag > scene.MAX_WEIGHT_STRAIN:
+                raise ParameterError(
+                    f"{option} {E:g} with --rho {self.rho:g}: the cloth's own weight would stretch it by rho g L / E = "
+                    f"{sag:.2g}, over {scene.MAX_WEIGHT_STRAIN:g}; the lesson's limits and modes are taken about a "
+                    f"hanging cloth that barely stretches: use {option} >= "
+                    f"{self.rho * 9.81 / scene.MAX_WEIGHT_STRAIN:.3g} N/m")
         scene.check_work(self)
 
 

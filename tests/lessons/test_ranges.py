@@ -179,7 +179,10 @@ def test_tiny_seeds_amplitudes_and_moduli_are_refused_by_their_ranges():
                                 ("springs", dict(k=1e-300), "--k"),
                                 ("springs", dict(dt_fraction=1.0), "--dt-fraction"),  # the stiffened chain blows up
                                 ("explicit-vs-implicit", dict(E=1.0), "--E 1"),  # its weight strains it by 98%
-                                ("explicit-vs-implicit", dict(seed_size=1e-3), "--seed-size")):
+                                ("explicit-vs-implicit", dict(seed_size=1e-3), "--seed-size"),
+                                # the sweep's softest cloth: its weight would strain it by 1e300
+                                ("explicit-vs-implicit", dict(E_soft=1e-300), "--E-soft 1e-300"),
+                                ("explicit-vs-implicit", dict(E_soft=9.8), "--E-soft 9.8")):
         exc = up_front(LESSONS[lesson_id], **kw)
         assert isinstance(exc, ParameterError) and str(exc).startswith(flag), (lesson_id, kw, exc)
 
