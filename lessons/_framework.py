@@ -329,6 +329,7 @@ class StageContext:
         self._stream, self._quiet = stream, quiet
         self.stepping = stepping or Stepping()
         self.integrators_used: list[str] = []  # "run: integrator" for every run of this stage
+        self.result_notes: list[str] = []      # markdown shown under the stage's results table (e.g. a table)
 
     def integrator_name(self, default: str, fixed: bool = False) -> str:
         """The integrator a run uses: ``default`` unless ``--integrator`` overrides it (never
@@ -439,7 +440,8 @@ def run_lesson(lesson: Lesson, cfg, rec, stages: list[int] | None = None, out=sy
             print(f"   integrators: {used}", file=out)
         print(f"   ({time.perf_counter() - t0:.1f} s)", file=out, flush=True)
         rec.markdown("results", f"## {index}. {stage.title}: experiments\n\n" + markdown_table(experiments)
-                     + (f"\n\nIntegrators: {used}" if used else ""))
+                     + (f"\n\nIntegrators: {used}" if used else "")
+                     + "".join(f"\n\n{note}" for note in ctx.result_notes))
         for e in experiments:
             d = e.to_dict(lesson.id, index, stage.title)
             d["integrators"] = sorted({u.split(": ", 1)[1] for u in ctx.integrators_used})

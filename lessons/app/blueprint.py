@@ -24,8 +24,9 @@ import rerun.blueprint as rrb
 PROGRESS_TICKS = 1000       # a run's span on the ``progress`` timeline
 PLAYBACK_SECONDS = 20.0     # a run plays in this many seconds at the viewer's 1x speed
 CAMERAS = ("top", "front", "outside")
-ENERGY_PLOT_NAME = "J: K green · W blue · E white"
-DRIFT_PLOT_NAME = "(E − E1) / |E1|: drift of the total energy"
+ENERGY_PLOT_NAME = "{unit}: K · W · E"   # unit: the run's energy unit (RunPlan.energy_unit); colours: ENERGY_KEY
+ENERGY_KEY = "energy plots: K kinetic green, W potential blue, E = K + W white"
+DRIFT_PLOT_NAME = "(E − E1)/|E1|"
 FOV_Y = math.radians(55.0)  # the 3D view's vertical field of view (the viewer's default)
 
 
@@ -73,6 +74,7 @@ class RunPlan:
     aspect: float | None = None       # width/height its camera was placed for (set by the layout)
     frame_bytes: int = 0              # bytes of the first frame's arrays
     has_energy: bool = False
+    energy_unit: str = "J"                # the energies are plotted in this unit (J, mJ, µJ, ...: values of 1 - 1000)
     plot: tuple[str, str] | None = None   # RunView.plot
     has_series: bool = False              # logged a series of its own (scalar_series)
     has_events: bool = False
@@ -139,6 +141,16 @@ def _camera(run: RunPlan, aspect: float) -> rrb.EyeControls3D:
 _GRID_W, _GRID_H = 1150.0, 580.0
 
 
+def _aspect(run: RunPlan) -> float:
+    """Width / height of the run's bounding box as its camera sees it."""
+    ext = np.maximum(run.hi - run.lo, 1e-9) if run.lo is not None else np.ones(3)
+    if run.camera == "top":
+        return float(ext[0] / ext[1])
+    if run.camera == "front":
+        return float(ext[0] / ext[2])
+    return 1.0
+
+
 def _grid_shape(runs: list) -> tuple[int, bool]:
     """(columns, strip): rods and other long flat things go one per row, their plot beside them."""
     n = len(runs)
@@ -170,7 +182,10 @@ def stage_view(stage: StagePlan) -> rrb.Container:
     for run in runs:
         own_plot = run.plot is not None and run.has_series
         has_plot = own_plot or (run.energy is not None and run.has_energy)
-        scene_w = cell_w * (0.675 if (has_plot and side_by_side) else 1.0)
+        # beside its plot, a scene takes the width its body needs at the cell's height (a square cloth
+        # needs little of a wide cell), between 60% and 67.5% of the cell: the plot and its (short) title get the rest
+        share = min(0.675, max(0.6, 1.1 * (cell_h - 24) * _aspect(run) / cell_w)) if side_by_side else 1.0
+        scene_w = cell_w * (share if has_plot else 1.0)
         scene_h = cell_h * (0.7 if (has_plot and not side_by_side) else 1.0) - 24  # title bar
         key = "; ".join(run.keys.values())
         scene = rrb.Spatial3DView(origin=run.entity, name=run.label + (f" · {key}" if key else ""),
@@ -186,9 +201,9 @@ def stage_view(stage: StagePlan) -> rrb.Container:
             plot = rrb.TimeSeriesView(origin=f"{run.entity}/energy_change", name=DRIFT_PLOT_NAME,
                                       plot_legend=rrb.PlotLegend(visible=False))
         else:
-            plot = rrb.TimeSeriesView(origin=f"{run.entity}/energy", name=ENERGY_PLOT_NAME,
+            plot = rrb.TimeSeriesView(origin=f"{run.entity}/energy", name=ENERGY_PLOT_NAME.format(unit=run.energy_unit),
                                       plot_legend=rrb.PlotLegend(visible=False))
-        cells.append(rrb.Horizontal(scene, plot, column_shares=[2.7, 1.3]) if side_by_side
+        cells.append(rrb.Horizontal(scene, plot, column_shares=[share, 1.0 - share]) if side_by_side
                      else rrb.Vertical(scene, plot, row_shares=[2.3, 1]))
     grid = rrb.Grid(*cells, grid_columns=columns)
     left = rrb.Vertical(grid, results, row_shares=[2.4, 1])

@@ -44,7 +44,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from .blueprint import CAMERAS, PROGRESS_TICKS, RunPlan, RunView, StagePlan, lesson_blueprint
+from .blueprint import CAMERAS, ENERGY_KEY, PROGRESS_TICKS, RunPlan, RunView, StagePlan, lesson_blueprint
 from .outfile import OutputFile, OutputWriteError
 from .recorder_energies import RecorderEnergies
 from .recorder_geometry import RecorderGeometry
@@ -222,6 +222,7 @@ class Recorder(RecorderGeometry, RecorderEnergies, NullRecorder):
         self._energy_width = None     # steps per energy bin, fixed once the run has run long
         self._energy_dt = 0.0
         self._energy_first_total = None
+        self._energy_factor = None    # J per unit of the run's energy plot (energy_unit), fixed at its first samples
 
     # --- structure --------------------------------------------------------------
     def stage(self, index: int, title: str, narrative: str) -> None:
@@ -274,10 +275,14 @@ class Recorder(RecorderGeometry, RecorderEnergies, NullRecorder):
     def _end_stage(self) -> None:
         """Finish the current run and write the stage's colour keys, one line per run with any."""
         self._end_run()
-        keyed = [r for r in self.stages[-1].runs if r.keys and r.has_geometry] if self.stages else []
-        if keyed:
+        runs = self.stages[-1].runs if self.stages else []
+        keyed = [r for r in runs if r.keys and r.has_geometry]
+        split = any(r.has_geometry and r.has_energy and r.energy == "split" and not (r.plot and r.has_series)
+                    for r in runs)
+        if keyed or split:
             self.markdown(KEYS_DOC, "Colours, each on a scale fixed for the whole run:\n\n" + "\n".join(
-                f"- **{r.label}**: " + "; ".join(r.keys.values()) for r in keyed))
+                [f"- **{r.label}**: " + "; ".join(r.keys.values()) for r in keyed]
+                + ([f"- {ENERGY_KEY}"] if split else [])))
 
     def _tick(self, sim_time: float, step: int) -> int:
         run = self._run

@@ -105,7 +105,12 @@ class RecorderEnergies:
         total = K + W
         if self._energy_first_total is None:
             self._energy_first_total = float(total[0])
-        series = {"energy/kinetic": K, "energy/potential": W, "energy/total": total}
+        if self._energy_factor is None:   # a unit in which the run's energies read as 1 .. 1000
+            self._energy_factor, unit = energy_unit(max(np.abs(K).max(), np.abs(W).max(), np.abs(total).max()))
+            if self._run is not None:
+                self._run.energy_unit = unit
+        f = self._energy_factor
+        series = {"energy/kinetic": K / f, "energy/potential": W / f, "energy/total": total / f}
         if self._run is not None and self._run.energy == "drift":
             e0 = self._energy_first_total
             series["energy_change/relative"] = (total - e0) / (abs(e0) if e0 else 1.0)
@@ -122,6 +127,21 @@ class RecorderEnergies:
                                    np.concatenate([p[0] for p in parts]))
                 del self._outbox[entity]
 
+
+
+ENERGY_UNITS = ((1e6, "MJ"), (1e3, "kJ"), (1.0, "J"), (1e-3, "mJ"), (1e-6, "µJ"), (1e-9, "nJ"), (1e-12, "pJ"),
+                (1e-15, "fJ"), (1e-18, "aJ"))
+
+
+def energy_unit(magnitude: float) -> tuple[float, str]:
+    """(J per unit, its name) of the largest unit in which ``magnitude`` J is at least 1 (J for 0 or a
+    non-finite magnitude): a plot's axis then reads 1 .. 1000, not 0.000 000 000 02."""
+    if not (math.isfinite(magnitude) and magnitude > 0):
+        return 1.0, "J"
+    for factor, name in ENERGY_UNITS:
+        if magnitude >= factor:
+            return factor, name
+    return ENERGY_UNITS[-1]
 
 
 def _envelope(bins: np.ndarray, values: np.ndarray) -> np.ndarray:

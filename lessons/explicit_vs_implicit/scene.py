@@ -94,8 +94,57 @@ def cloth_logger(scene, scale: float, gain: float = 1.0):
     return log
 
 
+COST_COLOURS = {"explicit": (230, 160, 30), "pcg": (90, 150, 255), "direct": (90, 200, 90)}
+
+
+def draw_cost_curves(rec, rows, frame_dt: float) -> None:
+    """Stage 3's picture (one frame): the cost curves as a log-log chart drawn in the plane, wall-clock
+    seconds per simulated second against E for symplectic Euler at its limit and backward Euler with
+    pcg and with the direct solver at one frame, a tick per decade and each curve named at its end."""
+    from lessons.app.blueprint import RunView
+
+    direct = rows[0]["direct_name"]
+    curves = {"explicit": ("symplectic Euler", [r["t_exp"] for r in rows]),
+              "pcg": ("backward Euler, pcg", [r["t_pcg"] for r in rows]),
+              "direct": (f"backward Euler, {direct}", [r["t_direct"] for r in rows])}
+    lx = np.log10([r["E"] for r in rows])
+    ly = {key: np.log10(np.maximum(np.asarray(t, dtype=np.float64), 1e-12)) for key, (_, t) in curves.items()}
+    finite = np.concatenate([v[np.isfinite(v)] for v in ly.values()])
+    x0, x1 = math.floor(lx.min()), math.ceil(lx.max())
+    y0, y1 = math.floor(finite.min()), math.ceil(finite.max())
+    W, H = 1.6, 1.0   # the chart's box in the plane (m of the scene)
+
+    def at(x, y):
+        return np.column_stack([(np.asarray(x) - x0) / max(x1 - x0, 1) * W, (np.asarray(y) - y0) / max(y1 - y0, 1) * H,
+                                np.zeros(np.size(x))])
+    rec.run("cost", RunView(label=f"wall-clock s per simulated s against E (log-log; backward Euler at dt = "
+                                  f"{frame_dt:.3g} s)", camera="top", energy=None))
+    rec.set_time(0, 0.0)
+    grey = [120, 120, 120]
+    axes = [np.array([[0, 0, 0], [W, 0, 0]]), np.array([[0, 0, 0], [0, H, 0]])]
+    ticks = [at([d, d], [y0, y0])[:, :] + np.array([[0, 0, 0], [0, -0.02, 0]]) for d in range(x0, x1 + 1)]
+    ticks += [at([x0, x0], [d, d]) + np.array([[0, 0, 0], [-0.02, 0, 0]]) for d in range(y0, y1 + 1)]
+    rec.line_strips("axes", axes + ticks, colors=[grey] * (len(axes) + len(ticks)), radii=0.002)
+    labels = [(at([d], [y0])[0] + [0, -0.06, 0], f"1e{d} N/m") for d in range(x0, x1 + 1)]
+    labels += [(at([x0], [d])[0] + [-0.12, 0, 0], f"1e{d} s/s") for d in range(y0, y1 + 1)]
+    rec.labels("ticks", [p for p, _ in labels], [t for _, t in labels], colors=[[170, 170, 170]] * len(labels))
+    ends = {}
+    for key, (name, _) in curves.items():
+        ok = np.isfinite(ly[key])
+        pts = at(lx[ok], ly[key][ok])
+        rec.line_strips(f"{key}/curve", [pts], colors=[COST_COLOURS[key]], radii=0.005)
+        rec.points(f"{key}/runs", pts, colors=[COST_COLOURS[key]] * len(pts), radii=0.014)
+        if len(pts):
+            ends[key] = pts[-1] + [0.03, 0, 0]
+    last = -math.inf
+    for key in sorted(ends, key=lambda k: ends[k][1]):   # names at the curves' ends, 0.07 apart at least
+        ends[key][1] = max(ends[key][1], last + 0.07)
+        last = ends[key][1]
+        rec.labels(f"{key}/name", [ends[key]], [curves[key][0]], colors=[COST_COLOURS[key]])
+
+
 def timings_table(rows) -> str:
-    """The sweep as a markdown table (the recording's timings document), narrow enough for a side panel."""
+    """The sweep as a markdown table (shown under the stage's results)."""
     direct = rows[0]["direct_name"] if rows else "direct"
     lines = [f"| E (N/m) | explicit dt (µs) | steps / s | CG / step | √(1 + w²dt²) | explicit | BE-PCG | BE-{direct} |",
              "|---|---|---|---|---|---|---|---|"]

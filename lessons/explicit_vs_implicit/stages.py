@@ -31,7 +31,7 @@ from engine.statics import solve_static
 from .._framework import Experiment
 from .._measure import edge_strain, vertex_strain
 from .._scene import simulate
-from .scene import Watched, announce, cloth_logger, free_modes, in_plane_seed, timings_table
+from .scene import Watched, announce, cloth_logger, draw_cost_curves, free_modes, in_plane_seed, timings_table
 
 EXPLICIT_CHUNK = 50            # stage 3: explicit steps per timed launch (about a 60 fps frame's at 3e-4 s)
 SETTLED = 1e-3                 # "reaches the hanging equilibrium": max |x - x_eq| / sag at the end
@@ -354,7 +354,7 @@ def _mode_damping(ctx):
         E0 = diagnostics.total_energy(model, state)  # the rest shape has zero energy (no gravity)
         be = make_integrator("backward-euler", solver="cholesky", tol=1e-12, newton_iterations=5, newton_tol=1e-12)
         theory = 1.0 / (1.0 + wdt * wdt)
-        view = RunView(label=f"{which[mode]} mode ({mode}), w dt = {wdt:g}, drawn ×{gain:g}")
+        view = RunView(label=f"w dt = {wdt:g}, {which[mode]} mode ({mode}), drawn ×{gain:g}")
         steps, K, W = simulate(ctx, f"mode{mode}_wdt{wdt:g}", model, state, dt, 3, be, every=1, fixed=True,
                                log=cloth_logger(scene, float(np.abs(_vertex_strain(scene, X + u)).max()), gain),
                                view=view)
@@ -474,10 +474,12 @@ def stage_speed(ctx):
     summary = _crossovers(ctx, Es, rows, steps_exp, cg)
     ctx.progress(f"explicit steps per simulated second ~ E^{slope_exp:.3f}; PCG iterations per step ~ E^{slope_cg:.3f} "
                  f"(sqrt(1 + w_max^2 dt^2) ~ E^{slope_cond:.3f})")
-    ctx.rec.markdown("timings", "## Wall-clock per simulated second (timed on this run's machine; noisy)\n\n"
-                     + timings_table(rows) + "\n\n" + "\n\n".join(summary)
-                     + f"\n\nExplicit steps per simulated second ~ E^{slope_exp:.3f}; PCG iterations per step ~ "
-                       f"E^{slope_cg:.3f}; sqrt(1 + w_max^2 dt^2) ~ E^{slope_cond:.3f}.")
+    if ctx.rec.enabled:
+        draw_cost_curves(ctx.rec, rows, cfg.frame_dt)
+    ctx.result_notes.append("## Wall-clock per simulated second (timed on this run's machine; noisy)\n\n"
+                            + timings_table(rows) + "\n\n" + "\n\n".join(summary)
+                            + f"\n\nExplicit steps per simulated second ~ E^{slope_exp:.3f}; PCG iterations per step "
+                              f"~ E^{slope_cg:.3f}; sqrt(1 + w_max^2 dt^2) ~ E^{slope_cond:.3f}.")
     return [
         Experiment(f"every timed run stayed bounded over the {cfg.frames} frames after the release (runs that "
                    "blew up)", 0, len(blown), 0, "abs", id="timed-runs-bounded"),

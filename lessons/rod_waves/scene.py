@@ -91,6 +91,36 @@ def simulate(ctx, name: str, rod: Rod, state, dt: float, n_steps: int, method: s
     return K, W
 
 
+STENCIL_WINDOW = 41   # consecutive nodes stage 1's picture shows (the check covers every node)
+
+
+def draw_stencil_check(rec, rod, p: np.ndarray, u: np.ndarray, accel: np.ndarray, stencil: np.ndarray) -> None:
+    """Stage 1's picture (one frame), STENCIL_WINDOW consecutive nodes around the rod's middle drawn
+    across the view: above, the test displacement u (a sine plus noise at each node); below, the
+    force per mass the engine computes from the energy's gradient (a line through the nodes) and the
+    PDE's centred stencil written from the formula (a dot at each node), to one scale: every dot sits
+    on the line, node by node."""
+    mid = p.size // 2
+    at = np.arange(max(1, mid - STENCIL_WINDOW // 2), min(p.size - 1, mid + STENCIL_WINDOW // 2 + 1))
+    rec.run("stencil", RunView(label=f"nodes {at[0]}..{at[-1]}: u (top); force / mass from the energy (line) "
+                                     "and the PDE's stencil (dots)", camera="top", energy=None))
+    rec.set_time(0, 0.0)
+    s = (p[at] - p[at[0]]) / (p[at[-1]] - p[at[0]])   # the window across the view
+    zero = np.zeros_like(s)
+    du = u[at] - u[at].mean()
+    u_gain = 0.12 / max(float(np.abs(du).max()), 1e-300)
+    a_gain = 0.2 / max(float(np.abs(stencil[at - 1]).max()), 1e-300)
+    rec.line_strips("displacement", [np.column_stack([s, 0.3 + u_gain * du, zero])], colors=[[90, 150, 255]],
+                    radii=0.003)
+    rec.points("displacement_nodes", np.column_stack([s, 0.3 + u_gain * du, zero]), colors=[[90, 150, 255]],
+               radii=0.007)
+    rec.line_strips("force_per_mass", [np.column_stack([s, -0.15 + a_gain * accel[at], zero])],
+                    colors=[[230, 160, 30]], radii=0.003)
+    rec.points("stencil", np.column_stack([s, -0.15 + a_gain * stencil[at - 1], zero]), colors=[[240, 240, 240]],
+               radii=0.009)
+    rec.labels("labels", [[-0.04, 0.3, 0.0], [-0.04, -0.15, 0.0]], ["u", "f/m"])
+
+
 # ------------------------------------------------------------------ the budget and the parameters' limits
 
 MIN_FIT_POINTS = 3         # observations a speed fit of stage 2 needs (a line through at least three peaks)
@@ -141,6 +171,7 @@ def largest_record_every(cfg) -> int:
         else:
             hi = mid - 1
     return lo
+
 
 
 def stage_work(cfg, stage: int) -> float:

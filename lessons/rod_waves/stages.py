@@ -24,8 +24,8 @@ from engine.scenes import Rod
 from .._framework import Experiment, check_interrupt
 from .._measure import central_gradient, expect, modal_tracks, observation_steps, track_peaks
 from .._scene import progress_bar
-from .scene import (announce_work, gaussian, gaussian_slope, method_label, pulse_width, simulate, uniform_rod,
-                    varying_rod)
+from .scene import (announce_work, draw_stencil_check, gaussian, gaussian_slope, method_label, pulse_width, simulate,
+                    uniform_rod, varying_rod)
 
 
 SYMPLECTIC = ("symplectic-euler", "velocity-verlet")  # no damping: the undamped theory applies
@@ -51,6 +51,8 @@ def stage_energy(ctx):
     # the two sides weigh the node's spacings differently (lumped mass vs segment length), and the spacings
     # h_j = p_j+1 - p_j are known only to eps max|p| / h relative: the check is good to that, not to a fixed 1e-12
     stencil_tol = max(1e-12, 4 * np.finfo(np.float64).eps * float(np.abs(x).max()) / float(rod.h.min()))
+    if ctx.rec.enabled:
+        draw_stencil_check(ctx.rec, rod, p, u, f / rod.mass, _stencil(rod, x))
     return [
         Experiment("force/mass equals the PDE's finite-difference stencil (max rel. difference)",
                    0.0, _stencil_error(rod, x, f), stencil_tol, "abs", id="force-is-pde-stencil"),
@@ -63,15 +65,19 @@ def stage_energy(ctx):
     ]
 
 
-def _stencil_error(rod: Rod, x, f) -> float:
-    """Max |force/mass - the PDE's centred stencil| / max |stencil|, the stencil written from the
-    formula (1/rho) d/dp(E (dx/dp - 1)), not from the engine."""
+def _stencil(rod: Rod, x) -> np.ndarray:
+    """The PDE's centred stencil (1/rho) d/dp(E (dx/dp - 1)) at the interior nodes, written from the
+    formula, not from the engine."""
     E, h = rod.E, rod.h
-    a = f / rod.mass
     sigma = (x[1:] - x[:-1]) / h - 1.0
     rho_node = 0.5 * (rod.rho[1:] + rod.rho[:-1])
-    stencil = (E[1:] * sigma[1:] - E[:-1] * sigma[:-1]) / h[1:] / rho_node
-    return np.max(np.abs(a[1:-1] - stencil)) / np.max(np.abs(stencil))
+    return (E[1:] * sigma[1:] - E[:-1] * sigma[:-1]) / h[1:] / rho_node
+
+
+def _stencil_error(rod: Rod, x, f) -> float:
+    """Max |force/mass - the PDE's centred stencil| / max |stencil|."""
+    stencil = _stencil(rod, x)
+    return np.max(np.abs(f[1:-1] / rod.mass[1:-1] - stencil)) / np.max(np.abs(stencil))
 
 
 # ------------------------------------------------------------------ the scene runs of stages 2 and 4

@@ -198,3 +198,48 @@ def test_check_writable_refuses_directories_and_unwritable_places(tmp_path):
         check_writable(blocker / "sub" / "x.rrd")
     assert check_writable(tmp_path / "new" / "x.rrd").parent.is_dir()
     assert not (tmp_path / "new" / "x.rrd").exists()
+
+
+def test_tiny_energies_are_plotted_in_a_unit_that_reads(tmp_path):
+    """A run of 2e-11 J plots in pJ (axis 0 .. 20, not 0.000 000 000 02); the plot's title names the
+    unit and the stage's colour keys say which curve is which (the title is short enough to read)."""
+    from rerun.chunk import RrdReader
+
+    from lessons.app.blueprint import ENERGY_KEY
+    from lessons.app.recorder_energies import energy_unit
+
+    assert energy_unit(2e-11) == (1e-12, "pJ") and energy_unit(0.5) == (1e-3, "mJ")
+    assert energy_unit(3.0) == (1.0, "J") and energy_unit(0.0) == (1.0, "J") and energy_unit(5e4) == (1e3, "kJ")
+    path = tmp_path / "tiny.rrd"
+    rec = Recorder(path, "test_units", camera="top")
+    rec.stage(1, "s", "t")
+    rec.run("r", RunView(label="tiny"), n_steps=10, dt=0.1)
+    for step in (0, 10):
+        rec.set_time(step, 0.1 * step)
+        rec.points("p", np.array([[0.0, 0.0, 0.0], [1.0, 1.0, 0.0]]))
+    rec.energies(np.full(10, 0.5e-11), np.full(10, 1.5e-11), 0.1)
+    rec.close()   # flushes the run's energies: the blueprint written with the file is this one
+    bp = rec.blueprint()
+    run = rec.stages[0].runs[0]
+    assert run.energy_unit == "pJ"
+    names = []
+
+    def walk(node):
+        for child in getattr(node, "contents", None) or []:
+            if hasattr(child, "class_identifier"):
+                names.append(child.name)
+            elif not isinstance(child, str):
+                walk(child)
+    walk(bp.root_container)
+    assert "pJ: K · W · E" in names
+    got = {}
+    for chunk in RrdReader(str(path)).stream():
+        batch = chunk.to_record_batch()
+        col = next((c for c in batch.schema.names if c.endswith("scalars")), None)
+        if col is not None:
+            got.setdefault(chunk.entity_path, []).extend(v[0] for v in batch.column(col).to_pylist() if v)
+        text = next((c for c in batch.schema.names if c.endswith("text")), None)
+        if text is not None and chunk.entity_path.endswith("colour_keys"):
+            got["keys"] = batch.column(text).to_pylist()[0]
+    assert np.allclose(got["/stage1/r/energy/total"], 20.0)
+    assert ENERGY_KEY in str(got["keys"])

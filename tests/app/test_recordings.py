@@ -87,6 +87,15 @@ def test_every_scene_view_has_a_camera_that_frames_its_run(layouts, lesson_id):
 
 
 @pytest.mark.parametrize("lesson_id", LESSON_IDS)
+def test_every_stage_shows_a_picture_of_its_point(layouts, lesson_id):
+    """No tab is text alone: each stage draws at least one scene (rod-waves' stencil check and
+    explicit-vs-implicit's cost curves were tables only)."""
+    _, rec, bp, _ = layouts[lesson_id]
+    for stage, tab in zip(rec.stages, bp.root_container.contents):
+        assert views(tab, "3D") or views(tab, "2D"), f"{lesson_id} stage {stage.index} ({stage.title}) draws nothing"
+
+
+@pytest.mark.parametrize("lesson_id", LESSON_IDS)
 def test_the_recording_opens_on_a_tab_with_geometry(layouts, lesson_id):
     _, rec, bp, _ = layouts[lesson_id]
     tabs = bp.root_container

@@ -142,7 +142,10 @@ def test_recording_has_meshes_energies_blow_up_marks_and_timings(recording):
         assert 300 < events["frames"][0] <= 1000
     assert "/stage2/mode0_wdt1/mesh" in info
     assert len(info["/stage2/mode0_wdt1/mesh"]["frames"]) == 4  # the mode and its three steps
-    assert "/stage3/timings" in info and "/stage3/narrative" in info
+    assert "/stage3/results" in info and "/stage3/narrative" in info   # the timings table: under the results
+    # stage 3's point drawn: the three cost curves against E, a point per timed modulus
+    for key in ("explicit", "pcg", "direct"):
+        assert f"/stage3/cost/{key}/curve" in info and f"/stage3/cost/{key}/runs" in info
     # measurements only: the convergence runs and the timed runs draw nothing
     drawn = {e.split("/")[2] for e in info if e.startswith(("/stage2/", "/stage3/")) and e.endswith("/mesh")}
     assert drawn == {"mode0_wdt0.1", "mode0_wdt1", "mode47_wdt0.3", "mode47_wdt3", "mode93_wdt30"}
@@ -151,8 +154,10 @@ def test_recording_has_meshes_energies_blow_up_marks_and_timings(recording):
 
 def test_recording_views_are_labelled_seen_from_the_front_and_keyed(recording):
     _, _, _, rec = recording
-    drawn = [(s.index, r) for s in rec.stages for r in s.runs if r.has_geometry]
+    drawn = [(s.index, r) for s in rec.stages for r in s.runs if r.has_geometry and s.index < 3]
     assert [i for i, _ in drawn] == [1] * 5 + [2] * 5
+    chart = [r for s in rec.stages for r in s.runs if r.has_geometry and s.index == 3]   # the cost curves, from above
+    assert [r.name for r in chart] == ["cost"] and chart[0].camera == "top" and not chart[0].has_energy
     for i, run in drawn:
         assert run.label and run.label != run.name and run.camera == "front", run.name
         assert list(run.keys) == ["strain"], run.name
