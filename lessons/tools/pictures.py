@@ -95,7 +95,8 @@ def parser() -> argparse.ArgumentParser:
 
 
 # The README shows each lesson's opening tab and one more that is characteristic of it.
-README_TABS = {"rod-waves": 4, "springs": 2, "area-springs": 2, "bending": 4, "explicit-vs-implicit": 2}
+README_TABS = {"rod-waves": 2, "springs": 2, "area-springs": 2, "bending": 4, "explicit-vs-implicit": 3,
+               "membranes": 3}
 README_TIME = 900.0
 README_SIZE = (1280, 800)
 
