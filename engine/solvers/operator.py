@@ -69,7 +69,7 @@ def _filtered_scale(q: vec3_array, inv_mass: scalar_array, c: float):
 # Operator helpers
 # --------------------------------------------------------------------------------------------
 
-def _hessian_plan(model: Model, x, psd: bool = True, extra=None, blocks: dict | None = None,
+def hessian_plan(model: Model, x, psd: bool = True, extra=None, blocks: dict | None = None,
                   work: WorkArrays | None = None):
     """One callable per energy, ``add(p, q)``: q += H_e(x) p with the PSD (or exact) Hessian.
     Energies offering the "blocks" product (springs) compute their blocks here, once per solve
@@ -102,7 +102,7 @@ def _hessian_plan(model: Model, x, psd: bool = True, extra=None, blocks: dict | 
     return plan
 
 
-def _scaled(extra, c: float):
+def scaled_operator(extra, c: float):
     """extra = (s, x2[, kind]) of A = a M + c H(x) + s H(x2) (or s D(x2)), as seen in A' = A / c;
     None if absent."""
     if extra is None or float(extra[0]) == 0.0:
@@ -135,7 +135,7 @@ def element_terms(model: Model, x, psd: bool, extra):
             yield 1.0, e, e.hessian_blocks(x, psd)
 
 
-def _apply_plan(model: Model, plan, a: float, p, q) -> None:
+def apply_plan(model: Model, plan, a: float, p, q) -> None:
     """q = a M p + H p (unfiltered)."""
     _mass_product(p, model.mass_nd, a, q)
     for add in plan:
@@ -149,7 +149,7 @@ def apply_system(model: Model, x, p, q, mass_coef: float, hess_coef: float = 1.0
     c = float(hess_coef)
     if c <= 0.0:
         raise ValueError(f"hess_coef must be > 0 (got {hess_coef!r})")
-    _apply_plan(model, _hessian_plan(model, x, psd, _scaled(extra, c)), float(mass_coef) / c, p, q)
+    apply_plan(model, hessian_plan(model, x, psd, scaled_operator(extra, c)), float(mass_coef) / c, p, q)
     _filtered_scale(q, model.inv_mass_nd, c)
 
 

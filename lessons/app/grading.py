@@ -32,7 +32,7 @@ from pathlib import Path
 from .._exercise import StudentError, empty_functions, module_file
 from .._framework import COMPARISONS, Experiment, Terminated, text_table
 from . import channel
-from .arguments import UsageError, _Parser
+from .arguments import UsageError, Parser
 from .exercises import exercise_module, lessons_with_exercises
 from .results import encode, package_version, results_document
 from .sandbox import copied_from, policy_problems
@@ -43,8 +43,8 @@ UNIT_STAGE = 0   # the "stage" of the function-by-function checks in the results
 PROJECT_ROOT = Path(__file__).resolve().parents[2]
 
 
-def _parser(ids: list[str]) -> _Parser:
-    p = _Parser(prog="python -m lessons check", description=(
+def _parser(ids: list[str]) -> Parser:
+    p = Parser(prog="python -m lessons check", description=(
         "Grade a student's exercise: each function the student wrote is checked on its own (against the "
         "lesson's formula; forces and Hessians against finite differences), then the lesson's own "
         "experiments run with the student's functions in place of the engine's. Exit 0 when every claim "
@@ -541,19 +541,19 @@ def _end_with_parent(signal_number: int) -> None:
 def _results_target(text: str, solution: Path):
     """``--results PATH`` checked and its temporary file created before any grading (bad input,
     exit 2, when it cannot be written or would replace a file of the student's solution)."""
-    from .output_paths import _output, _prepare, _shown
+    from .output_paths import output_target, prepare_outputs, shown_path
     if text.strip() in ("", "-"):
         raise UsageError(f"--results needs a file name (got {text!r})")
-    target = _output("--results", text, False)
+    target = output_target("--results", text, False)
     resolved = Path(os.path.realpath(target.path))
     sol = Path(os.path.realpath(solution))
     if resolved.parent == sol and (resolved.suffix == ".py" or resolved.is_dir()):
-        raise UsageError(f"--results {_shown(text)} is a file of the solution in {solution}: give the results "
+        raise UsageError(f"--results {shown_path(text)} is a file of the solution in {solution}: give the results "
                          f"another name (a .json file)")
     if resolved.suffix == ".py":
-        raise UsageError(f"--results {_shown(text)} would write JSON over a Python file: give the results a .json "
+        raise UsageError(f"--results {shown_path(text)} would write JSON over a Python file: give the results a .json "
                          f"name")
-    _prepare([("--results", target)])
+    prepare_outputs([("--results", target)])
     return target
 
 

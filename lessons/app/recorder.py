@@ -44,7 +44,8 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from .blueprint import CAMERAS, ENERGY_KEY, PROGRESS_TICKS, RunPlan, RunView, StagePlan, lesson_blueprint
+from ..views import CAMERAS, RunView
+from .blueprint import ENERGY_KEY, PROGRESS_TICKS, RunPlan, StagePlan, lesson_blueprint
 from .outfile import OutputFile, OutputWriteError
 from .recorder_energies import RecorderEnergies
 from .recorder_geometry import RecorderGeometry

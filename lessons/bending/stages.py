@@ -14,7 +14,7 @@ from engine.analysis import convergence_order, fit_slope
 from engine.constants import G
 from engine.energies.bending import BendingEnergy
 from engine.integrators import make_integrator
-from lessons.app.blueprint import RunView
+from lessons.views import RunView
 from engine.scenes import cloth
 from engine.statics import solve_static
 

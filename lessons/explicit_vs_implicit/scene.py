@@ -10,8 +10,7 @@ import numpy as np
 
 from engine.fields import vec3_ndarray
 
-from .. import _budget
-from .._budget import StageCost, check_stages
+from .._budget import StageCost, announce as announce_budget, check_stages
 from .._measure import edge_strain, vertex_strain
 
 # ------------------------------------------------------------------ builders: modes, seed, integrator
@@ -101,7 +100,7 @@ def draw_cost_curves(rec, rows, frame_dt: float) -> None:
     """Stage 3's picture (one frame): the cost curves as a log-log chart drawn in the plane, wall-clock
     seconds per simulated second against E for symplectic Euler at its limit and backward Euler with
     pcg and with the direct solver at one frame, a tick per decade and each curve named at its end."""
-    from lessons.app.blueprint import RunView
+    from lessons.views import RunView
 
     direct = rows[0]["direct_name"]
     curves = {"explicit": ("symplectic Euler", [r["t_exp"] for r in rows]),
@@ -209,4 +208,4 @@ def check_work(cfg) -> None:
 
 
 def announce(ctx, stage: int) -> None:
-    _budget.announce(ctx, stage_seconds(ctx.cfg, stage), bound=True)
+    announce_budget(ctx, stage_seconds(ctx.cfg, stage), bound=True)

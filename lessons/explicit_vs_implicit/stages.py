@@ -24,7 +24,7 @@ from engine.integrators import make_integrator
 from engine.stability import gershgorin_lambda_max, lambda_max_power
 from engine.theory.schemes import symplectic_euler_growth
 from engine.fields import vec3_ndarray
-from lessons.app.blueprint import RunView
+from lessons.views import RunView
 from engine.scenes import cloth
 from engine.statics import solve_static
 

@@ -14,10 +14,9 @@ from engine import mesh as M
 from engine.energies.membrane import MembraneEnergy, lame
 from engine.model import Model
 from engine.waves import bloch_modes
-from lessons.app.blueprint import RunView
+from lessons.views import RunView
 
-from .. import _budget
-from .._budget import StageCost, check_stages
+from .._budget import StageCost, announce as announce_budget, check_stages
 from .._measure import stretch_strip
 from ..area_springs.scene import area_model
 
@@ -255,7 +254,7 @@ def check_work(cfg) -> None:
 
 
 def announce(ctx, stage: int) -> None:
-    _budget.announce(ctx, stage_seconds(ctx.cfg, stage))
+    announce_budget(ctx, stage_seconds(ctx.cfg, stage))
 
 
 # ------------------------------------------------------------------ the damped wave (stage 5)

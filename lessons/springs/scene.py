@@ -18,7 +18,7 @@ from engine.errors import ParameterError
 from engine.fields import vec3_ndarray
 from engine.model import Model
 from engine.scenes import Rod
-from lessons.app.blueprint import RunView
+from lessons.views import RunView
 
 from .._budget import StageCost, check_stages
 from .._measure import edge_strain

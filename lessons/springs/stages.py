@@ -30,7 +30,7 @@ from engine.model import Model
 from engine.scenes import Rod
 from engine.stability import stable_dt_estimate
 from engine.statics import solve_static
-from lessons.app.blueprint import RunView
+from lessons.views import RunView
 
 from .._budget import announce
 from .._framework import Experiment

@@ -7,7 +7,8 @@ import time
 import numpy as np
 import pytest
 
-from lessons.app.blueprint import PROGRESS_TICKS, RunView
+from lessons.app.blueprint import PROGRESS_TICKS
+from lessons.views import RunView
 from lessons.app.recorder import FRAMES_PER_RUN, MIN_FRAMES_PER_RUN, NullRecorder, Recorder, check_writable, summarize
 from lessons.app.recorder_energies import ENERGY_SAMPLES
 from lessons.app.recorder_geometry import strain_colors
