@@ -251,3 +251,15 @@ print("ok", len(seen))
 '''
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, cwd=ROOT)
     assert done.returncode == 0 and done.stdout.startswith("ok"), done.stderr[-3000:]
+
+
+def test_one_newton_loop_in_the_engine():
+    """The static solve and the backward-Euler step minimise through engine.newton.minimize: no other
+    engine module holds a line search (its constants) or calls a linear solve in a loop of its own."""
+    users = sorted(str(p.relative_to(ROOT)) for p in _source_files("engine") if "engine.newton" in _modules(p))
+    assert users == ["engine/integrators/implicit.py", "engine/statics.py"], users
+    holders = sorted(str(p.relative_to(ROOT)) for p in _source_files("engine")
+                     if any(isinstance(n, ast.Assign) and any(getattr(t, "id", "") in ("ARMIJO_C1", "MAX_BACKTRACKS")
+                                                             for t in n.targets)
+                            for n in ast.walk(ast.parse(p.read_text()))))
+    assert holders == ["engine/newton.py"], holders
