@@ -94,8 +94,7 @@ from engine.energies.hinge import (MODE_HALF_ANGLE, MODE_QUADRATIC, dihedral_ang
 # the angle's kernels, also named here (__all__) for this module's readers
 from engine.energies.hinge import bridson_u_kernel, hinge_angles_kernel, theta_gradient_kernel, theta_hessian_kernel
 from engine.errors import ModelError
-from engine.fields import (float_dtype, int_array, mat3_array2, scalar_array, vec3_array, vec3_array2,
-                           vec3_ndarray)
+from engine.fields import float_dtype, int_array, mat3_array2, scalar_array, vec3_argument, vec3_array, vec3_array2
 from engine.fields import int_array2 as hinge_array
 from engine.mesh import as_points3, dihedral_angles, hinge_geometry, incidence
 
@@ -432,18 +431,9 @@ class BendingEnergy(Energy):
     # -- argument handling ---------------------------------------------------------------------
     def _vec3(self, a, slot: str):
         """A vec3 ndarray view of a (numpy arrays are copied into a per-slot scratch buffer)."""
-        if isinstance(a, np.ndarray):
-            a = np.asarray(a, dtype=np.float64).reshape(-1, 3)
-            if len(a) != self.n_vertices:
-                raise BendingError(f"{slot} has {len(a)} vertices, the bending energy has {self.n_vertices}")
-            buf = self._scratch.get(slot)
-            if buf is None:
-                buf = self._scratch[slot] = vec3_ndarray(self.n_vertices)
-            buf.from_numpy(a.astype(float_dtype()))
-            return buf
-        if tuple(a.shape) != (self.n_vertices,):
+        if not isinstance(a, np.ndarray) and tuple(a.shape) != (self.n_vertices,):
             raise BendingError(f"{slot} has shape {tuple(a.shape)}, the bending energy has {self.n_vertices} vertices")
-        return a
+        return vec3_argument(a, self.n_vertices, self._scratch, slot, BendingError, "the bending energy")
 
     def hinge_args(self) -> tuple:
         """(hinges, k_nd, theta_bar_nd, mode): what every per-hinge kernel takes after x."""

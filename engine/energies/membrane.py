@@ -58,7 +58,7 @@ import taichi as ti
 
 from engine.energies.base import Energy, gather_slot_blocks_kernel, slot_gather
 from engine.errors import ModelError
-from engine.fields import (float_dtype, int_array, mat3_array2, scalar_array, vec3_array, vec3_array2, vec3_ndarray)
+from engine.fields import float_dtype, int_array, mat3_array2, scalar_array, vec3_argument, vec3_array, vec3_array2
 from engine.fields import int_array2 as triangle_array
 from engine.mesh import as_points3, incidence
 
@@ -451,16 +451,7 @@ class MembraneEnergy(Energy):
         return cls(mesh.vertices, mesh.triangles, model, **kwargs)
 
     def _vec3(self, a, slot: str):
-        if isinstance(a, np.ndarray):
-            a = np.asarray(a, dtype=np.float64).reshape(-1, 3)
-            if len(a) != self.n_vertices:
-                raise MembraneError(f"{slot} has {len(a)} vertices, the membrane has {self.n_vertices}")
-            buf = self._scratch.get(slot)
-            if buf is None:
-                buf = self._scratch[slot] = vec3_ndarray(self.n_vertices)
-            buf.from_numpy(a.astype(float_dtype()))
-            return buf
-        return a
+        return vec3_argument(a, self.n_vertices, self._scratch, slot, MembraneError, "the membrane")
 
     def corner_force_launch(self) -> tuple:
         """(kernel, tail, templates): ``kernel(x, *tail, *templates)`` writes every triangle's corner
