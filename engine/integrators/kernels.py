@@ -252,7 +252,7 @@ CLOTH_SE, CLOTH_VV, CLOTH_VV_BEGIN = 0, 1, 2
 @ti.func
 def _hinge_entry(x: ti.template(), I: ti.template(), F: ti.template(), hv, f_h, q, mode):
     """The four forces of the block's hinge entry q (vertices I[hv + 4q ...], k and theta_bar in F):
-    engine.energies.hinge.hinge_forces, as engine.energies.bending.hinge_force_vectors computes them."""
+    engine.energies.hinge.hinge_forces, as engine.energies.bending_kernels.hinge_force_vectors computes them."""
     e, a0, a1 = hinge_frame(x, I[hv + 4 * q], I[hv + 4 * q + 1], I[hv + 4 * q + 2], I[hv + 4 * q + 3])
     return hinge_forces(e, a0, a1, F[f_h + 2 * q], F[f_h + 2 * q + 1], mode)
 
