@@ -73,7 +73,7 @@ def test_any_number_of_blocks_gives_the_same_bits(method):
 
 @pytest.mark.parametrize("method", list(INTEGRATORS))
 def test_many_steps_in_one_launch_give_the_same_bits(method):
-    """step(n) runs all n steps in one launch (kernels.cloth_steps: each block stays on its thread and
+    """step(n) runs all n steps in one launch (cloth_kernels.cloth_steps: each block stays on its thread and
     the threads meet at a barrier where a step's loop would end): the same state as n launches of
     one step and as the generic path. 24 x 24 vertices: two blocks on a two-thread runtime."""
     from engine import runtime
