@@ -1,4 +1,4 @@
-"""The engine's explicit step of a Baraff-Witkin membrane (engine/energies/membrane.py, (M2): the
+"""The engine's explicit step of a Baraff-Witkin membrane (engine/energies/triangle.py, (M2): the
 stretch and shear conditions of each triangle in its rest (u, v) frame) written with NVIDIA Warp on
 ``device="cpu"``, as :mod:`bench.peers.warp_cloth` writes the springs and hinges.
 

@@ -405,8 +405,8 @@ def _why_explicit(rows, side, step) -> list:
     if all(ks.values()):
         total = sum(k["per_step_s"] for k in ks.values())
         parts = ", ".join(f"{k} {v['per_step_s'] * 1e6:.0f} us ({v['per_step_s'] / total:.0%})" for k, v in ks.items())
-        why.append(f"The engine's step is one kernel launch (engine/integrators/kernels.py, cloth_step: one parallel "
-                   f"loop over vertex blocks, each block summing its vertices' spring and hinge forces in the "
+        why.append(f"The engine's step is one kernel launch (engine/integrators/cloth_kernels.py, cloth_step: one "
+                   f"parallel loop over vertex blocks, each block summing its vertices' spring and hinge forces in the "
                    f"generic path's order and updating them; cloth_steps takes many steps in one launch); the "
                    f"{len(ks)} kernels of the generic path, launched alone, take {parts} "
                    f"(sum {total * 1e3:.3f} ms against {step['per_step_s'] * 1e3:.3f} ms for the fused step).")

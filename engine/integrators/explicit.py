@@ -22,7 +22,10 @@ import numpy as np
 
 from engine.constants import EXPLICIT
 from engine.fields import WorkArrays, int_ndarray, scalar_ndarray, vec3_ndarray, zero_vec3
+from engine.integrators import batched_steps as B
+from engine.integrators import cloth_kernels as C
 from engine.integrators import kernels as K
+from engine.integrators.launch import BoundKernel
 from engine.integrators.monitor import Monitor
 from engine.model import Model, State
 
@@ -61,7 +64,7 @@ CLOTH_BLOCK_MIN = 256  # vertices per block at least: below it a second thread c
 
 
 def cloth_plan(model: Model, n_blocks: int):
-    """The arrays of :func:`engine.integrators.kernels.cloth_step` for a springs [+ one hinge energy]
+    """The arrays of :func:`engine.integrators.cloth_kernels.cloth_step` for a springs [+ one hinge energy]
     model split into ``n_blocks`` contiguous vertex blocks: (I, F, boundary count), or None when the
     springs' incidence is not ordered by neighbour index (then no block order reproduces the
     generic path's sums; the generic path is taken).
@@ -123,11 +126,11 @@ def cloth_plan(model: Model, n_blocks: int):
     sections = [vb, np.concatenate([[0], np.cumsum(in_count[in_v])]), other[inc], csr(up), other[up],
                 bnd.astype(np.int64), bnd_list, None, h_off, hv, np.searchsorted(bnd_list, vb), in_v,
                 np.searchsorted(in_v, vb)]
-    header = np.zeros(K.HEADER, dtype=np.int64)
-    header[K.H_NB], header[K.H_N] = nb, n
-    parts, pos = [header], K.HEADER
-    slots = (K.H_VB, K.H_IN_OFF, K.H_IN_J, K.H_UP_OFF, K.H_UP_C, K.H_BFLAG, K.H_BND, K.H_NBND, K.H_HOFF, K.H_HV,
-             K.H_BOFF, K.H_IN_V, K.H_IN_VOFF)
+    header = np.zeros(C.HEADER, dtype=np.int64)
+    header[C.H_NB], header[C.H_N] = nb, n
+    parts, pos = [header], C.HEADER
+    slots = (C.H_VB, C.H_IN_OFF, C.H_IN_J, C.H_UP_OFF, C.H_UP_C, C.H_BFLAG, C.H_BND, C.H_NBND, C.H_HOFF, C.H_HV,
+             C.H_BOFF, C.H_IN_V, C.H_IN_VOFF)
     for slot, arr in zip(slots, sections):
         if arr is None:
             header[slot] = int(bnd.sum())
@@ -139,8 +142,8 @@ def cloth_plan(model: Model, n_blocks: int):
     fparts = [inv_mass, np.stack([cl[eid[inc]], il[eid[inc]]], 1).reshape(-1),
               np.stack([cl[eid[up]], il[eid[up]]], 1).reshape(-1), hf, np.asarray(model.gravity, dtype=np.float64)]
     fpos = np.cumsum([0] + [len(a) for a in fparts])
-    header[K.H_F_IN], header[K.H_F_UP], header[K.H_F_H], header[K.H_F_G] = fpos[1], fpos[2], fpos[3], fpos[4]
-    header[K.H_MODE] = int(bending.mode) if bending is not None else 0
+    header[C.H_F_IN], header[C.H_F_UP], header[C.H_F_H], header[C.H_F_G] = fpos[1], fpos[2], fpos[3], fpos[4]
+    header[C.H_MODE] = int(bending.mode) if bending is not None else 0
     I = np.concatenate(parts)
     if I.max(initial=0) >= 2 ** 31 or fpos[-1] >= 2 ** 31:
         return None
@@ -149,8 +152,8 @@ def cloth_plan(model: Model, n_blocks: int):
 
 def cloth_stepper(model: Model, n_blocks: int | None = None, work: dict | None = None):
     """``step(state, dt, method="symplectic-euler", n_steps=1)``: ``n_steps`` steps of ``method``, one
-    launch of :func:`engine.integrators.kernels.cloth_step` each, or all in one launch of
-    :func:`engine.integrators.kernels.cloth_steps` when every block has a thread; None when the
+    launch of :func:`engine.integrators.cloth_kernels.cloth_step` each, or all in one launch of
+    :func:`engine.integrators.cloth_kernels.cloth_steps` when every block has a thread; None when the
     model's energies are not springs [+ one hinge energy] in that order (or their incidence has no
     block order: :func:`cloth_plan`). Methods: "symplectic-euler", "velocity-verlet" (kick-drift,
     then force-kick; the acceleration is carried in the work array) and "velocity-verlet-begin"
@@ -175,16 +178,16 @@ def cloth_stepper(model: Model, n_blocks: int | None = None, work: dict | None =
         w = d["cloth_w"] = vec3_ndarray(4 * n)  # spring sums, hinge sums, boundary x, Verlet acceleration
     sync = d.get("cloth_sync")
     if sync is None:
-        sync = d["cloth_sync"] = int_ndarray(np.zeros(K.SYNC_SIZE))
+        sync = d["cloth_sync"] = int_ndarray(np.zeros(C.SYNC_SIZE))
     with_h = sig == ("springs", "hinges")
-    launch = {what: K.BoundKernel(K.cloth_step, (w, I, F), (what, with_h, n_boundary > 0))
-              for what in (K.CLOTH_SE, K.CLOTH_VV, K.CLOTH_VV_BEGIN)}
+    launch = {what: BoundKernel(C.cloth_step, (w, I, F), (what, with_h, n_boundary > 0))
+              for what in (C.CLOTH_SE, C.CLOTH_VV, C.CLOTH_VV_BEGIN)}
     codes = CLOTH_METHODS
     # many steps per launch with a thread per block and a core per thread (cloth_steps' threads
     # spin while they wait for each other: on a shared core that would cost a time slice)
-    nb = int(I.to_numpy()[K.H_NB])
-    multi = {what: K.BoundKernel(K.cloth_steps, (w, I, F, sync, K.SPIN_LIMIT), (what, with_h))
-             for what in (K.CLOTH_SE, K.CLOTH_VV)} if nb <= _threads() <= _cores() else {}
+    nb = int(I.to_numpy()[C.H_NB])
+    multi = {what: BoundKernel(C.cloth_steps, (w, I, F, sync, C.SPIN_LIMIT), (what, with_h))
+             for what in (C.CLOTH_SE, C.CLOTH_VV)} if nb <= _threads() <= _cores() else {}
 
     def step(state, dt, method="symplectic-euler", n_steps=1):
         if state.x.shape[0] != n:
@@ -197,7 +200,7 @@ def cloth_stepper(model: Model, n_blocks: int | None = None, work: dict | None =
                 k = min(left, MULTI_STEP_CHUNK)
                 if multi[what](state.x, state.v, dt, k):
                     zero_vec3(w)  # the sums a block left in it (a launch starts from zero sums)
-                    raise RuntimeError(f"the many-steps cloth kernel gave up: a thread waited more than {K.SPIN_LIMIT} "
+                    raise RuntimeError(f"the many-steps cloth kernel gave up: a thread waited more than {C.SPIN_LIMIT} "
                                        f"polls for the tasks before its own (the state is part-way through a step); "
                                        f"is every CPU thread of the runtime really running? ELASTIC_THREADS=1 avoids it")
                 left -= k
@@ -207,7 +210,7 @@ def cloth_stepper(model: Model, n_blocks: int | None = None, work: dict | None =
     return step
 
 
-CLOTH_METHODS = {"symplectic-euler": K.CLOTH_SE, "velocity-verlet": K.CLOTH_VV, "velocity-verlet-begin": K.CLOTH_VV_BEGIN}
+CLOTH_METHODS = {"symplectic-euler": C.CLOTH_SE, "velocity-verlet": C.CLOTH_VV, "velocity-verlet-begin": C.CLOTH_VV_BEGIN}
 
 
 def corner_stepper(model: Model, work: dict | None = None):
@@ -215,7 +218,7 @@ def corner_stepper(model: Model, work: dict | None = None):
     "corner-gather" force form (a membrane), with the interface of :func:`cloth_stepper`; None for
     any other model. Each step launches the energy's per-element force kernel and
     :func:`engine.integrators.kernels.corner_update_kernel` (gather + update), both bound
-    (:class:`engine.integrators.kernels.BoundKernel`): symplectic Euler = forces, gather + update;
+    (:class:`engine.integrators.launch.BoundKernel`): symplectic Euler = forces, gather + update;
     velocity Verlet = kick-drift, forces, gather + kick; "velocity-verlet-begin" = forces, gather +
     acceleration. The generic path launches the same force kernel, then a zeroing, a gather and an
     update through Taichi's own call; the states are bitwise the same (tested). ``work``: the dict
@@ -229,13 +232,13 @@ def corner_stepper(model: Model, work: dict | None = None):
     if a is None or a.shape[0] != n:
         a = d["corner_a"] = vec3_ndarray(n)
     kernel, tail, templates = e.corner_force_launch()
-    forces = K.BoundKernel(kernel, tail, templates)
+    forces = BoundKernel(kernel, tail, templates)
     offsets, entries = e.slot_incidence
     g = [float(c) for c in np.asarray(model.gravity, dtype=np.float64).reshape(3)]
     tail = (a, e.per_corner, offsets, entries, model.inv_mass_nd, *g)
 
     def update(method, phase):
-        return K.BoundKernel(K.corner_update_kernel, tail, (e.stencil_size, method, phase))
+        return BoundKernel(K.corner_update_kernel, tail, (e.stencil_size, method, phase))
     se = update(K.SYMPLECTIC_EULER, K.STEP)
     kick_drift = update(K.VELOCITY_VERLET, K.KICK_DRIFT)
     accel_kick = update(K.VELOCITY_VERLET, K.ACCEL_KICK)
@@ -281,7 +284,7 @@ def _cores() -> int:
 def many_steps(model: Model, state: State, dt: float, n_steps: int, method: str, monitor: Monitor, work,
                step_offset: int = 0):
     """``n_steps`` steps of ``method`` of a spring-only model in one launch of
-    :func:`engine.integrators.kernels.many_steps`, with ``work``'s arrays (an
+    :func:`engine.integrators.batched_steps.many_steps`, with ``work``'s arrays (an
     :class:`engine.fields.WorkArrays`); returns (kinetic, potential) after every step (J), and
     raises the monitor's BlowUpError at the first step whose energy is not finite or above its
     bound (see :func:`run_many_steps`)."""
@@ -296,11 +299,11 @@ def many_steps(model: Model, state: State, dt: float, n_steps: int, method: str,
         raise ValueError(f"state has {state.n} vertices, model has {model.n}")
     if n_steps == 0:
         return np.zeros(0), np.zeros(0)
-    kin, pot = K.energy_buffers(n_steps)
-    done = K.many_steps(state.x, state.v, work.vec3("f"), work.vec3("a"),
+    kin, pot = B.energy_buffers(n_steps)
+    done = B.many_steps(state.x, state.v, work.vec3("f"), work.vec3("a"),
                         *springs.force_args(), springs.edges, springs.L, springs.c, springs.m, model.mass_nd,
                         model.inv_mass_nd, model.gravity_vec, dt, n_steps, kin, pot, monitor.bound, K.METHODS[method])
-    return K.collect(kin, pot, done, n_steps, state, dt, monitor, step_offset)
+    return B.collect(kin, pot, done, n_steps, state, dt, monitor, step_offset)
 
 
 def run_many_steps(model: Model, state: State, dt: float, n_steps: int, method: str = "symplectic-euler",

@@ -168,7 +168,7 @@ def draw_patch(rec, name: str, label: str, m3: M.Mesh, x, energy) -> None:
 
 def triangle_stretch(energy, x: np.ndarray) -> np.ndarray:
     """(m,) each triangle's larger stretch along the warp and the weft, max(|w_u|, |w_v|) - 1 (the
-    lengths of F's columns, (F1) of engine.energies.membrane), from numpy positions x."""
+    lengths of F's columns, (F1) of engine.energies.triangle), from numpy positions x."""
     T, Di = energy.triangles_np, energy.Dinv_np
     d1, d2 = x[T[:, 1]] - x[T[:, 0]], x[T[:, 2]] - x[T[:, 0]]
     wu = d1 * Di[:, 0, 0, None] + d2 * Di[:, 1, 0, None]
