@@ -254,6 +254,47 @@ def factor_text(r: float | None) -> str:
     return f"{r!r} times"
 
 
+def named_mistake(measured, mistakes, scale=None) -> str:
+    """The text of the first known mistake, of ``mistakes`` ((wrong results, text) pairs, in order),
+    whose results the student's are (:func:`matches`), or ''."""
+    return next((text for wrong, text in mistakes if matches(measured, wrong, scale)), "")
+
+
+def explain_failure(name: str, got, ref, tol: float, scale=None, *, where: Callable[[int], str],
+                    otherwise: Callable[[int], str], of: str, mistakes=(), checks=(), sign: str = "",
+                    after_mistakes=(), factor_notes: dict | None = None) -> str:
+    """Why the student's ``name`` returned ``got`` where ``ref`` was expected, for a check that failed
+    (a deviation above ``tol``, measured against ``scale`` as :func:`deviation` does): the first rung
+    of this ladder that holds, with i the first call off by more than ``tol``:
+
+    1. NaN or inf in ``got``: '<name> returns NaN or inf at <where(i)>';
+    2. ``checks``, in order: (test, text) pairs, ``test()`` called only when this rung is reached;
+    3. when ``sign`` is given, ``got`` is minus ``ref``: '<name> has the wrong sign: <sign>';
+    4. a known mistake of ``mistakes`` ((wrong results, text) pairs; :func:`named_mistake`): '<name> <text>';
+    5. ``after_mistakes``: (test, text) pairs as in 2;
+    6. a constant factor from ``ref`` (:func:`factor_text`): '<name> is <factor> <of>', followed by
+       ``factor_notes``' text for that factor where it has one;
+    7. else ``otherwise(i)``."""
+    i = first_bad(got, ref, tol, scale)
+    r = factor_text(ratio(got, ref))
+    named = named_mistake(got, mistakes, scale)
+    if not np.all(np.isfinite(got)):
+        return f"{name} returns NaN or inf at {where(i)}"
+    for test, text in checks:
+        if test():
+            return text
+    if sign and r == "minus":
+        return f"{name} has the wrong sign: {sign}"
+    if named:
+        return f"{name} {named}"
+    for test, text in after_mistakes:
+        if test():
+            return text
+    if r:
+        return f"{name} is {r} {of}" + (factor_notes or {}).get(r, "")
+    return otherwise(i)
+
+
 def agreement(claim: str, id: str, dev: float, tol: float, reason: str, unit: str = "") -> Experiment:
     """An experiment 'the largest relative deviation is at most ``tol``' (theory = the bound)."""
     return Experiment(claim, tol, dev, 0.0, "<=", unit=unit, id=id, reason=reason)

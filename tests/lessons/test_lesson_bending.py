@@ -333,7 +333,7 @@ def test_range_edges_run_and_pass():
 
 
 def test_stiff_cloths_get_newton_steps_in_proportion():
-    from lessons.bending.stages import newton_cap
+    from lessons.bending.stages_structures import newton_cap
     assert newton_cap(BendingConfig()) == 400  # the default cloth: unchanged
     assert newton_cap(BendingConfig(cloth_E=1e5)) == 4000  # 786 steps measured for the softest cloth there
 

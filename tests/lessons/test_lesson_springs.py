@@ -309,7 +309,7 @@ def test_backward_euler_with_cholesky_on_one_chain():
     """--solver cholesky reaches the scheme's prediction too (one chain: the cost is in the factorisations)."""
     from lessons._framework import StageContext, Stepping
     from lessons.app.recorder import NullRecorder
-    from lessons.springs import scene, stages as springs
+    from lessons.springs import scene, stages_dynamics as springs
     cfg = SpringsConfig(**SMALL)
     ctx = StageContext(LESSON, cfg, NullRecorder(), 4, quiet=True,
                        stepping=Stepping(integrator="backward-euler", solver="cholesky"))
