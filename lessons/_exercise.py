@@ -119,7 +119,7 @@ def call_student(name: str, fn, *args, kernel: bool = True):
 
 class LocalFunction:
     """The student's function in this process (the tests of the checks). The grader hands the
-    checks a remote one instead (lessons.app.grading): the same ``via``, with the student's code
+    checks a remote one instead (lessons.app.grading_remote): the same ``via``, with the student's code
     in a guarded child process and the verdicts here.
 
     ``via(factory, *args)`` is the function around which ``factory(func, *args)`` builds a

@@ -1,4 +1,4 @@
-"""The grading child: the only process that runs the student's code (lessons.app.grading starts it,
+"""The grading child: the only process that runs the student's code (lessons.app.grading_remote starts it,
 talks to it over two pipes and stops it at its time limits).
 
     python -m lessons.app.grading_child LESSON SOLUTION_FILE IN_FD OUT_FD GRADER_PID CPU_S MEMORY_BYTES
