@@ -75,7 +75,7 @@ def empty_functions(path: Path, names) -> list[str]:
 
 def load_student_module(path: Path):
     """Import the student's module from ``path`` (a fresh module object, not cached by name). The
-    grader loads it in its child under the guard instead (lessons.app.sandbox); tests load the
+    grader loads it in its child under the guard instead (lessons.app.sandbox_guard); tests load the
     lessons' own reference solutions with this."""
     spec = importlib.util.spec_from_file_location(f"student_{Path(path).stem}", path)
     module = importlib.util.module_from_spec(spec)
