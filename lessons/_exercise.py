@@ -75,7 +75,7 @@ def empty_functions(path: Path, names) -> list[str]:
 
 def load_student_module(path: Path):
     """Import the student's module from ``path`` (a fresh module object, not cached by name). The
-    grader loads it in its child under the guard instead (lessons.app.sandbox); tests load the
+    grader loads it in its child under the guard instead (lessons.app.sandbox_guard); tests load the
     lessons' own reference solutions with this."""
     spec = importlib.util.spec_from_file_location(f"student_{Path(path).stem}", path)
     module = importlib.util.module_from_spec(spec)
@@ -119,7 +119,7 @@ def call_student(name: str, fn, *args, kernel: bool = True):
 
 class LocalFunction:
     """The student's function in this process (the tests of the checks). The grader hands the
-    checks a remote one instead (lessons.app.grading): the same ``via``, with the student's code
+    checks a remote one instead (lessons.app.grading_remote): the same ``via``, with the student's code
     in a guarded child process and the verdicts here.
 
     ``via(factory, *args)`` is the function around which ``factory(func, *args)`` builds a

@@ -46,11 +46,12 @@ def test_the_engine_imports_neither_rerun_nor_lessons():
 def test_rerun_is_imported_by_the_recorder_alone():
     users = sorted(str(p.relative_to(ROOT)) for p in sorted((ROOT / "lessons").rglob("*.py"))
                    if "rerun" in _imports(p))
-    # the recorder, in parts: its geometry and energy plots, and the blueprint (layout) it sends;
-    # lessons/tools/viewer_processes.py drives the real viewer (headless screenshots), it writes
-    # no recording
+    # the recorder, in parts: its geometry and energy plots, the blueprint (layout) it sends, and
+    # the reading of a recording back (recorder_read.py); lessons/tools/viewer_processes.py drives
+    # the real viewer (headless screenshots), it writes no recording
     assert users == ["lessons/app/blueprint.py", "lessons/app/recorder.py", "lessons/app/recorder_energies.py",
-                     "lessons/app/recorder_geometry.py", "lessons/tools/viewer_processes.py"], users
+                     "lessons/app/recorder_geometry.py", "lessons/app/recorder_read.py",
+                     "lessons/tools/viewer_processes.py"], users
 
 
 def test_the_lessons_do_not_import_the_tools():
@@ -263,3 +264,10 @@ def test_one_newton_loop_in_the_engine():
                                                              for t in n.targets)
                             for n in ast.walk(ast.parse(p.read_text()))))
     assert holders == ["engine/newton.py"], holders
+
+
+def test_no_source_module_is_over_500_lines():
+    """Modules are split along what they are about before they grow past 500 lines."""
+    long = {str(p.relative_to(ROOT)): n for p in _source_files("engine", "lessons", "bench")
+            if (n := len(p.read_text().splitlines())) > 500}
+    assert not long, long

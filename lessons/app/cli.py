@@ -389,7 +389,8 @@ def _package_version() -> str:
 def _make_recorder(lesson, path, live: bool = False):
     """The lesson's recorder: the file at ``path`` (None: no file), streaming into a viewer that
     follows the stage being run when ``live``."""
-    from lessons.app.recorder import NullRecorder, Recorder
+    from lessons.app.recorder import Recorder
+    from lessons.app.recorder_null import NullRecorder
     if path is None and not live:
         return NullRecorder()
     return Recorder(path, "elastic_lessons_" + lesson.id.replace("-", "_"), title=f"{lesson.id}: {lesson.title}",

@@ -42,7 +42,8 @@ from .._exercise import module_file
 from .._framework import Terminated
 from .arguments import UsageError, Parser
 from .exercises import lessons_with_exercises
-from .grading import DEFAULT_MEMORY_GB, DEFAULT_TIME_LIMIT_S, PROJECT_ROOT, check_limits, check_stages
+from .grading import DEFAULT_MEMORY_GB, DEFAULT_TIME_LIMIT_S, check_limits, check_stages
+from .grading_remote import PROJECT_ROOT
 from .results import package_version
 
 STATE = ".grade-state.json"

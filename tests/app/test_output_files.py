@@ -12,7 +12,7 @@ import pytest
 
 from engine import runtime
 from lessons.app.outfile import OutputFile
-from lessons.app.recorder import run_status, summarize
+from lessons.app.recorder_read import run_status, summarize
 from lessons.app.results import read_results, result_rows
 from tests.helpers import ROOT, main_in
 

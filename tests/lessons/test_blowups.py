@@ -26,7 +26,9 @@ from engine.errors import BlowUpError
 from engine.integrators import Stepper, make_integrator, stable_dt_estimate
 from engine.integrators.explicit import run_many_steps as run_fused
 from engine.model import Model
-from lessons.app.recorder import NullRecorder, Recorder, summarize
+from lessons.app.recorder import Recorder
+from lessons.app.recorder_null import NullRecorder
+from lessons.app.recorder_read import summarize
 from engine.scenes import Rod
 from lessons import rod_waves
 from lessons._framework import Lesson, StageContext

@@ -12,7 +12,7 @@ from engine.solvers import pardiso_available
 
 from engine.constants import G
 from engine.errors import ParameterError
-from lessons.app.recorder import summarize
+from lessons.app.recorder_read import summarize
 from lessons._framework import validate_config
 from lessons.explicit_vs_implicit import LESSON, ExplicitImplicitConfig
 from engine.theory.schemes import symplectic_euler_growth

@@ -308,7 +308,7 @@ def test_velocity_verlet_pulses_meet_the_undamped_theory():
 def test_backward_euler_with_cholesky_on_one_chain():
     """--solver cholesky reaches the scheme's prediction too (one chain: the cost is in the factorisations)."""
     from lessons._framework import StageContext, Stepping
-    from lessons.app.recorder import NullRecorder
+    from lessons.app.recorder_null import NullRecorder
     from lessons.springs import scene, stages_dynamics as springs
     cfg = SpringsConfig(**SMALL)
     ctx = StageContext(LESSON, cfg, NullRecorder(), 4, quiet=True,
@@ -332,7 +332,8 @@ def test_stage2_views_frame_each_run(tmp_path):
     """The chains are seen from the front, the drifting frame about its centre of mass (its drawn
     box stays about its own size over the run), and forward Euler's view spans its first 1000 steps,
     drawn every few steps up to where it is stopped."""
-    from lessons.app.recorder import Recorder, summarize
+    from lessons.app.recorder import Recorder
+    from lessons.app.recorder_read import summarize
     rec = Recorder(tmp_path / "a.rrd", "test")
     assert_all_passed(run_stage(LESSON, 2, rec=rec, steps=20_000))
     rec.close()
@@ -353,7 +354,8 @@ def test_stage2_views_frame_each_run(tmp_path):
 
 
 def test_stage5_draws_the_rod_unloaded_and_hanging_side_by_side(tmp_path):
-    from lessons.app.recorder import Recorder, summarize
+    from lessons.app.recorder import Recorder
+    from lessons.app.recorder_read import summarize
     rec = Recorder(tmp_path / "a.rrd", "test")
     assert_all_passed(run_stage(LESSON, 5, rec=rec))
     rec.close()

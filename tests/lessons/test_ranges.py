@@ -19,7 +19,7 @@ from engine.errors import BlowUpError, ParameterError
 from lessons.app import registry
 from lessons._budget import WORK_BUDGET_S
 from lessons._framework import StageContext, field_type, validate_config
-from lessons.app.recorder import NullRecorder
+from lessons.app.recorder_null import NullRecorder
 
 LESSONS = {l.id: l for l in registry.all_lessons()}
 WALKED = ("rod-waves", "springs", "area-springs", "explicit-vs-implicit")

@@ -30,7 +30,7 @@ from engine.energies.bending import BendingEnergy
 from engine.mesh import Mesh, MeshError
 from engine.errors import ModelError
 from engine.model import Model
-from lessons.app.recorder import summarize
+from lessons.app.recorder_read import summarize
 from lessons.app import cli, registry
 from lessons._framework import Stepping, field_type, range_text
 from tests.helpers import ROOT
