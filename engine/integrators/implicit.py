@@ -31,9 +31,9 @@ p.Ap <= 0 in CG, or not a descent direction) or needs a shortened step, the PSD 
 again (the exact one is retried every 5 iterations).  With ``line_search`` each Newton step
 is backtracked (halving) until  Phi(x + s dx) < Phi(x)  and Armijo's condition
 Phi(x + s dx) <= Phi(x) + 1e-4 s grad Phi . dx  hold, so Phi decreases strictly
-monotonically; the values are kept in ``last_objectives``.  If no step length down to 2^-30
+monotonically; the values are kept in the step's StepInfo.objectives.  If no step length down to 2^-30
 decreases Phi measurably (round-off level, next to the minimum) the iteration stops there
-(``last_info.line_search_failed``).
+(StepInfo.line_search_failed).
 
 Newton stops when |grad Phi(x)| <= newton_tol max(|grad Phi(x_n)|, |M g|) (the weight keeps a
 settled hanging body from chasing round-off).  Linear solves go through
@@ -154,6 +154,8 @@ class StepInfo:
     step_sizes: list = field(default_factory=list)
     newton_converged: bool = False
     line_search_failed: bool = False
+    solves: int = 0                  # every linear solve of the step, refused exact-Hessian ones included,
+    all_linear_iterations: int = 0   # and their iterations
 
 
 class BackwardEuler:
@@ -171,9 +173,10 @@ class BackwardEuler:
       max_iter          CG iteration limit of each linear solve (pcg)
       exact_near_solution  with newton_iterations > 1, try the exact Hessian near the solution
 
-    ``advance(stepper, state, dt)`` is one step (a :class:`engine.integrators.stepper.Stepper` drives it).
-    After a step: ``last_info`` (:class:`StepInfo`), ``last_objectives`` (Phi values);
-    totals since :meth:`reset_stats`: ``total_steps``, ``total_solves``, ``total_linear_iterations``.
+    ``advance(ctx, state, dt) -> StepInfo`` is one step; a :class:`engine.integrators.stepper.Stepper`
+    drives it, handing it its StepContext (the model, its work arrays and its own linear solver, of
+    this integrator's kind and options) and keeping the StepInfo (``stepper.last_info``) and the
+    totals (``stepper.stats``). The integrator keeps nothing between steps.
     """
 
     name = "backward-euler"
@@ -207,38 +210,25 @@ class BackwardEuler:
         self.rayleigh_alpha = float(rayleigh_alpha)
         self.rayleigh_beta = float(rayleigh_beta)
         self.exact_near_solution = bool(exact_near_solution)
-        self.last_info = StepInfo()
-        self.reset_stats()
 
-    @property
-    def last_objectives(self) -> list:
-        """Phi at x_n and after each accepted Newton step of the last step (empty without line search)."""
-        return self.last_info.objectives
-
-    def reset_stats(self) -> None:
-        self.total_steps = 0
-        self.total_solves = 0
-        self.total_linear_iterations = 0
-
-    def begin(self, stepper, state: State) -> None:
+    def begin(self, ctx, state: State) -> None:
         """Nothing to prepare (kept for the integrator protocol)."""
 
     # -- one step ------------------------------------------------------------------------------
-    def advance(self, stepper, state: State, dt: float) -> None:
-        """One step of ``stepper.model`` with the stepper's work arrays; this integrator's linear
-        solver solves with the stepper's set-up (pattern, analysis) for that model. Newton on (IP) is
-        engine.newton's minimiser (the same loop as the static solve)."""
+    def advance(self, ctx, state: State, dt: float) -> StepInfo:
+        """One step of ``ctx.model`` with ``ctx.work``'s arrays and ``ctx.solver``; returns what it did.
+        Newton on (IP) is engine.newton's minimiser (the same loop as the static solve)."""
         dt = float(dt)
         if not (math.isfinite(dt) and dt > 0.0):
             raise ParameterError(f"dt must be finite and > 0 (got {dt!r})")
-        model = stepper.model
+        model = ctx.model
         if model.dampers and self.rayleigh_beta > 0.0:
             raise ParameterError("rayleigh_beta and a membrane's Baraff-Witkin damping cannot be combined in one "
                                  "backward-Euler step; use one of them")
-        work = {k: stepper.work.vec3("be_" + k) for k in ("xn", "f", "rhs", "dx", "trial", "d", "hq")}
+        work = {k: ctx.work.vec3("be_" + k) for k in ("xn", "f", "rhs", "dx", "trial", "d", "hq")}
         x = state.x
         copy_vec3(x, work["xn"])
-        problem = _StepProblem(self, stepper, state, dt, work)
+        problem = _StepProblem(self, ctx, state, dt, work)
         n = self.newton_iterations
         opts = newton.Options(max_iter=n, exact=self.exact_near_solution and n > 1, exact_retry=EXACT_RETRY,
                               line_search=self.line_search, strict_decrease=True, final_residual=n > 1)
@@ -246,19 +236,17 @@ class BackwardEuler:
         info = StepInfo(newton_iterations=len(res.linear), gradient_norms=problem.gradient_norms,
                         objectives=res.objectives, step_sizes=res.step_sizes,
                         newton_converged=res.status == "converged",
-                        line_search_failed=res.status == "line_search_failed")
+                        line_search_failed=res.status == "line_search_failed", solves=res.solves,
+                        all_linear_iterations=res.linear_iterations)
         info.linear_iterations = [lin.iterations for lin in res.linear]
         info.linear_residuals = [lin.residual for lin in res.linear]
-        self.last_info = info
-        self.total_solves += res.solves
-        self.total_linear_iterations += res.linear_iterations
         if res.status == "linear":
             copy_vec3(work["xn"], x)  # leave the state as it was
             raise SolverError(f"backward-euler step at t={state.t:.6g} s, Newton iteration {len(res.linear)}: "
                               f"{res.linear[-1].describe()}; raise max_iter or tol, or use solver='cholesky'")
         _be_finish(x, work["xn"], state.v, model.inv_mass_nd, 1.0 / dt)
         state.t += dt
-        self.total_steps += 1
+        return info
 
     def __repr__(self) -> str:
         return (f"<integrator backward-euler solver={self.solver.name} tol={self.tol:g} "
@@ -269,8 +257,8 @@ class _StepProblem(newton.Problem):
     """(IP) of one step for engine.newton: Phi, -grad Phi (in ``rhs``) and |grad Phi|, and the
     direction of (N1) from the integrator's solver with the stepper's set-up."""
 
-    def __init__(self, be: BackwardEuler, stepper, state: State, dt: float, work: dict):
-        self.be, self.stepper, self.model, self.dt, self.work = be, stepper, stepper.model, dt, work
+    def __init__(self, be: BackwardEuler, ctx, state: State, dt: float, work: dict):
+        self.be, self.solver, self.model, self.dt, self.work = be, ctx.solver, ctx.model, dt, work
         self.xn, self.v, self.rhs = work["xn"], state.v, work["rhs"]
         self.inv_dt2, self.a_dt = 1.0 / (dt * dt), be.rayleigh_alpha / dt
         self.mass_coef, self.hess_coef = newton_coefficients(dt, be.rayleigh_alpha, be.rayleigh_beta)
@@ -328,12 +316,11 @@ class _StepProblem(newton.Problem):
 
     def direction(self, x, dx, k: int, psd: bool, mu: float):
         """(N1), filtered on pinned vertices."""
-        be, model, solver, dt = self.be, self.model, self.stepper.solver, self.dt
-        with solver.using(self.stepper.solver_setup):
-            if model.dampers:                               # + D_n/dt, the damping's Jacobian
-                return solver.solve(model, x, self.rhs, dx, self.mass_coef, self.hess_coef, psd=psd,
-                                    extra=(1.0 / dt, self.xn, "damping"))
-            if k == 0 or be.rayleigh_beta == 0.0:           # x = x_n: the damping Hessian is H(x)
-                return solver.solve(model, x, self.rhs, dx, self.mass_coef, self.hess_coef, psd=psd)
-            return solver.solve(model, x, self.rhs, dx, self.mass_coef, 1.0, psd=psd,   # H(x) + (beta/dt) H_n
-                                extra=(be.rayleigh_beta / dt, self.xn))
+        be, model, solver, dt = self.be, self.model, self.solver, self.dt
+        if model.dampers:                               # + D_n/dt, the damping's Jacobian
+            return solver.solve(model, x, self.rhs, dx, self.mass_coef, self.hess_coef, psd=psd,
+                                extra=(1.0 / dt, self.xn, "damping"))
+        if k == 0 or be.rayleigh_beta == 0.0:           # x = x_n: the damping Hessian is H(x)
+            return solver.solve(model, x, self.rhs, dx, self.mass_coef, self.hess_coef, psd=psd)
+        return solver.solve(model, x, self.rhs, dx, self.mass_coef, 1.0, psd=psd,   # H(x) + (beta/dt) H_n
+                            extra=(be.rayleigh_beta / dt, self.xn))

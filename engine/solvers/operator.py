@@ -1,7 +1,7 @@
 """The linear system of the implicit steps, (L1)-(L3) of :mod:`engine.solvers`: its matrix-free
 product (:func:`apply_system`), the per-energy Hessian plan every solver applies, the result of a
 solve (:class:`LinearSolveInfo`, :class:`SolverError`) and the solvers' base class."""
-import contextlib
+import copy
 import math
 from typing import NamedTuple
 
@@ -161,7 +161,7 @@ class LinearSolver:
     """Base class: ``solve(model, x, b, y, mass_coef, hess_coef=1.0) -> LinearSolveInfo`` solves
     (L1)-(L2) for y (overwritten; 0 on pinned vertices).  ``tol`` is the relative residual (L3)
     to reach, ``max_iter`` the iteration limit.  The set-up for a model (work arrays, pattern,
-    analysis) is kept for one model at a time, or in a Stepper's holder (:meth:`using`)."""
+    analysis) is kept for one model at a time: a Stepper solves with its own (:meth:`fresh`)."""
 
     name = "linear"
 
@@ -182,18 +182,14 @@ class LinearSolver:
               psd: bool = True, extra=None) -> LinearSolveInfo:
         raise NotImplementedError
 
-    @contextlib.contextmanager
-    def using(self, holder: dict):
-        """Solve with the set-up kept in ``holder`` (a Stepper's: its model's pattern, analysis and
-        work arrays stay with it) instead of the solver's own; the options (tol, max_iter) are the
-        solver's, as they are at each solve."""
-        saved = (self._model, self._set_up)
-        self._model, self._set_up = holder.get("model"), holder.get("set_up")
-        try:
-            yield self
-        finally:
-            holder["model"], holder["set_up"] = self._model, self._set_up
-            self._model, self._set_up = saved
+    def fresh(self) -> "LinearSolver":
+        """A solver of the same kind and options with no set-up yet: a Stepper's own, which keeps its
+        model's pattern, analysis and work arrays for that stepper alone."""
+        twin = copy.copy(self)
+        twin._model, twin._set_up, twin.last_info = None, None, None
+        if hasattr(twin, "last_timings"):
+            twin.last_timings = {}
+        return twin
 
     def _entry(self, model: Model) -> dict:
         """The set-up (work arrays, pattern, analysis) for ``model``: one model at a time, rebuilt

@@ -31,10 +31,9 @@ class Watched:
     def __getattr__(self, name):  # name, implicit, solver, tol, begin, ... of the wrapped integrator
         return getattr(self.integrator, name)
 
-    def advance(self, stepper, state, dt):
-        model = stepper.model
-        self.integrator.advance(stepper, state, dt)
-        info = self.integrator.last_info
+    def advance(self, ctx, state, dt):
+        model = ctx.model
+        info = self.integrator.advance(ctx, state, dt)
         self.residuals.append(max(info.linear_residuals, default=0.0))
         self.iterations.append(sum(info.linear_iterations))
         self.solves += len(info.linear_iterations)
@@ -48,6 +47,7 @@ class Watched:
             noise = 64 * np.finfo(np.float64).eps * (abs(model.potential_energy(state.x)) + abs(model.elastic_energy(state.x)))
             converged = obj[-2] - obj[-1] <= noise
         self.converged.append(converged)
+        return info
 
 
 def free_modes(model, x, planar: bool = True):

@@ -25,7 +25,6 @@ from engine.analysis import fit_slope
 from engine.constants import EXPLICIT
 from engine.errors import BlowUpError
 from engine.integrators import Stepper, get as get_integrator
-from engine.integrators.explicit import run_many_steps
 from engine.model import Model
 from engine.scenes import Rod
 from engine.stability import stable_dt_estimate
@@ -78,7 +77,7 @@ def _fused_matches_stepwise(ctx):
     exps = []
     for method in ("symplectic-euler", "velocity-verlet", "forward-euler"):
         a, b = model.make_state(x0, v0), model.make_state(x0, v0)
-        K, W = run_many_steps(model, a, dt, 100, method)
+        K, W = Stepper(model, method, many_steps=True).energies(a, dt, 100)
         Stepper(model, get_integrator(method)).step(b, dt, 100)
         ctx.note_integrator(f"fused_vs_stepwise_{method}", method, fixed=True)
         xa, xb = a.numpy().x, b.numpy().x
@@ -162,7 +161,7 @@ def _wobble(ctx, name, model, x0, v0, dt, T, method):
     ctx.note_integrator(name, method, fixed=True)
     st = model.make_state(x0, v0)
     E0 = diagnostics.total_energy(model, st)
-    K, W = run_many_steps(model, st, dt, int(round(T / dt)), method)
+    K, W = Stepper(model, method, many_steps=True).energies(st, dt, int(round(T / dt)))
     E = np.concatenate([[E0], K + W])
     return float(E.max() - E.min()), float(np.abs(E).max())
 
@@ -202,7 +201,7 @@ def _forward_euler_modes(ctx):
     # the window: as many steps (at most 2000) as keep the predicted growth below 30x, so the
     # amplitude stays small and the motion linear
     n_fe = int(np.arange(1, 2001)[max(np.searchsorted(growth, 30.0) - 1, 0)])
-    K, W = run_many_steps(model, st, dt, n_fe, "forward-euler")
+    K, W = Stepper(model, "forward-euler", many_steps=True).energies(st, dt, n_fe)
     ctx.note_integrator("frame_forward-euler_growth", "forward-euler", fixed=True)
     predicted = float(growth[n_fe - 1])
     exps = [Experiment("frame, forward Euler: energy growth over n steps = sum_k E_k (1 + w_k^2 dt^2)^n / E0",
@@ -214,7 +213,7 @@ def _forward_euler_modes(ctx):
     st = model.make_state(x0)
     try:
         ctx.note_integrator("frame_forward-euler_detect", "forward-euler", fixed=True)
-        run_many_steps(model, st, dt, n_fe, "forward-euler", energy_bound=bound)
+        Stepper(model, "forward-euler", many_steps=True).energies(st, dt, n_fe, energy_bound=bound)
         detected = math.inf
     except BlowUpError as exc:
         detected = exc.step

@@ -1,5 +1,5 @@
 """Lesson springs (every experiment, key figures asserted) and the fused spring kernel
-(engine.integrators.explicit.run_many_steps) against the step-by-step explicit integrators.
+(the Stepper's many-steps path, Stepper.energies) against the step-by-step explicit integrators.
 
 The bad-input cases of the issue (zero/negative rest length, coincident endpoints, k <= 0,
 edge or pin index out of range) are covered by tests/engine/test_springs_energy.py.
@@ -14,7 +14,6 @@ from engine.energies.bending import BendingEnergy
 from engine.errors import BlowUpError
 from engine.integrators import Stepper
 from engine.stability import stable_dt_estimate
-from engine.integrators.explicit import run_many_steps as run_fused
 from engine.model import Model
 from lessons._framework import validate_config
 from lessons.springs import LESSON, SpringsConfig
@@ -37,6 +36,12 @@ def _network(gravity=None, pinned=None, seed=0):
     x0 = X + 0.02 * rng.standard_normal(X.shape)
     v0 = 0.5 * rng.standard_normal(X.shape)
     return model, x0, v0
+
+
+def run_fused(model, state, dt, n_steps, method="symplectic-euler", energy_bound=None, step_offset=0):
+    """n_steps of ``method`` in one launch of the many-steps kernel, through the Stepper (its energies)."""
+    from engine.integrators.stepper import Stepper
+    return Stepper(model, method, many_steps=True).energies(state, dt, n_steps, energy_bound, step_offset)
 
 
 CASES = {"free": dict(), "gravity_and_pins": dict(gravity=(0.0, -9.81, 0.0), pinned=[0, 3])}
@@ -125,7 +130,7 @@ def test_fused_forward_euler_grows_and_non_finite_energy_is_caught_without_a_bou
 def test_fused_bad_input():
     model, x0, v0 = _network()
     st = model.make_state(x0, v0)
-    with pytest.raises(ValueError, match="unknown method 'leapfrog'"):
+    with pytest.raises(ValueError, match="unknown integrator 'leapfrog'"):
         run_fused(model, st, 1e-3, 10, "leapfrog")
     for dt in (0.0, -1e-3, math.nan, math.inf):
         with pytest.raises(ValueError, match="dt must be > 0"):
