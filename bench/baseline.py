@@ -19,7 +19,7 @@ Cloth (:class:`NumpyCloth`), the scene of :func:`engine.scenes.cloth`:
   preconditioner to the relative residual ``tol`` (||b - A dx|| <= tol ||b||, the engine's (L3)).
 
 Membrane (:class:`NumpyMembrane`), the same mesh with Baraff-Witkin's stretch and shear conditions
-(engine/energies/membrane.py (M2)) instead of springs and hinges: its forces and its PSD blocks
+(engine/energies/triangle.py (M2)) instead of springs and hinges: its forces and its PSD blocks
 per triangle (stretch clipped, shear Gauss-Newton), the same assembly, solvers and step.
 
 Rod (:class:`NumpyRod`), the rod of :class:`engine.rod.Rod`: f_i = E_i s_i - E_{i-1} s_{i-1};
@@ -293,7 +293,7 @@ class NumpyCloth(NumpyElastic):
 
 
 class NumpyMembrane(NumpyElastic):
-    """A Model whose only energy is a Baraff-Witkin membrane (engine/energies/membrane.py (M2),
+    """A Model whose only energy is a Baraff-Witkin membrane (engine/energies/triangle.py (M2),
     undamped; :func:`bench.config.membrane_scene`), stepped in numpy and numpy + scipy.sparse: per
     triangle w_u, w_v from the rest frames' gradient rows g_a, the forces
     -A [k_s ((|w_u| - 1) g_a0 n_u + (|w_v| - 1) g_a1 n_v) + k_h s (g_a0 w_v + g_a1 w_u)] and the PSD

@@ -175,7 +175,7 @@ def _implicit_point(model, x0, v0, dt, solver, steps):
             stepper.advance(st, dt)
             ti.sync()
             ts.append(time.perf_counter() - t)
-            iters.append(be.last_info.linear_iterations[0])
+            iters.append(stepper.last_info.linear_iterations[0])
     except SolverError as exc:
         return dict(error=str(exc))
     step_s = float(np.median(ts))

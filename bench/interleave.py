@@ -6,9 +6,9 @@ benchmarks.  So each row of the report (one cloth size, one model or tolerance) 
 pytest-benchmark test whose timed body is a *round*: every contender once (a batch of calls for a
 fast one), in an order that rotates from round to round so that no contender always runs first or
 right after the same neighbour.  The per-round seconds of each contender are kept in
-``extra_info["interleaved"]``; the report (bench/report/derive.py) takes each contender's median
-over the rounds, and each ratio *per round* (engine / peer in the same round), giving the median
-ratio and its spread.
+``extra_info["interleaved"]``; the report takes each contender's median over the rounds
+(bench/report/derive.py), and each ratio *per round* (engine / peer in the same round,
+bench/report/ratios.py), giving the median ratio and its spread.
 
 A contender is a :class:`Contender`: ``run()`` does ``steps`` steps and synchronises; ``setup()``
 (untimed, before every call) resets its state where a call must start from the same state;

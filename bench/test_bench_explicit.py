@@ -15,7 +15,7 @@ from bench.baseline import NumpyCloth
 from bench.interleave import Contender, measure_row
 from bench.timing import measure, sync
 from bench.variants import bending_variant, spring_variant
-from engine.energies.bending import gather_hinge_vectors_kernel, hinge_forces_kernel
+from engine.energies.bending_kernels import gather_hinge_vectors_kernel, hinge_forces_kernel
 from engine.integrators import Stepper
 from engine.integrators import kernels as step_kernels
 from engine.fields import float_dtype, vec3_ndarray, zero_vec3

@@ -105,7 +105,7 @@ def _engine(c, solver, tol, steps=1):
         sync()
 
     def after():
-        d = dict(linear_iterations=int(be.last_info.linear_iterations[0]))
+        d = dict(linear_iterations=int(stepper.last_info.linear_iterations[0]))
         d.update({k + "_s": float(v) for k, v in getattr(stepper.solver, "last_timings", {}).items()})
         return d
 

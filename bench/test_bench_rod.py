@@ -72,7 +72,7 @@ def test_engine_rod_model_backward_euler(benchmark, nodes, solver):
     def run():
         stepper.advance(st, dt)
         sync()
-        iters.append(be.last_info.linear_iterations[0])
+        iters.append(stepper.last_info.linear_iterations[0])
 
     measure(benchmark, run, setup=reset, group="rod-step", impl="engine-model-" + solver, method="backward-euler",
             n=nodes, dt=dt, solver=solver, tol=tol, tol_failed=failed)

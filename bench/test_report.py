@@ -191,7 +191,7 @@ def test_interleaved_rows_give_per_round_ratios(tmp_path):
     per_round = sorted(a / b for a, b in zip(e_imp, p_imp))
     assert imp["ratio"] == pytest.approx(per_round[2])
     assert imp["spread"] == pytest.approx((per_round[0], per_round[-1])) and imp["resolved"] is False
-    assert "not resolved" in report.derive.ratio_text(imp)
+    assert "not resolved" in report.ratios.ratio_text(imp)
     lib = ratios["library"]
     assert lib["peer"] == "peer-pardiso-factor" and lib["ratio"] == pytest.approx(2.0)
     md = report.markdown(doc, "x-")

@@ -58,7 +58,7 @@ def kernel_bytes(kind: str, n: int, m: int = 0, h: int = 0, fb: int = 8) -> int:
             + n * v + 2 * m * (IB + 2 * fb) + n * 9 * fb
         vectors = 12 * n * v                                    # x_n copy, residual, restart, finish
         return forces + spring_blocks + hinge_blocks + hinge_factors + precond + vectors
-    if kind == "rod_explicit_step":    # engine.integrators.kernels.many_steps on the rod chain, symplectic Euler incl. the energies
+    if kind == "rod_explicit_step":    # engine.integrators.batched_steps.many_steps on the rod chain, symplectic Euler incl. the energies
         return 15 * n * fb
     if kind == "rod_implicit_step":    # Thomas algorithm step incl. the energies
         return 20 * n * fb

@@ -76,6 +76,23 @@ def int_ndarray(values: np.ndarray):
     return a
 
 
+def vec3_argument(a, n: int, scratch: dict, slot: str, error: type, owner: str):
+    """``a`` as a vec3 ndarray of ``n`` entries, for an energy's methods that take numpy arrays too: a
+    numpy array (n vec3, any shape) is copied into ``scratch[slot]`` (allocated on first use, reused
+    after) and that buffer returned; anything else (an ndarray) is returned as it is. A numpy array
+    of another length raises ``error``: "<slot> has <len> vertices, <owner> has <n>"."""
+    if isinstance(a, np.ndarray):
+        a = np.asarray(a, dtype=np.float64).reshape(-1, 3)
+        if len(a) != n:
+            raise error(f"{slot} has {len(a)} vertices, {owner} has {n}")
+        buf = scratch.get(slot)
+        if buf is None:
+            buf = scratch[slot] = vec3_ndarray(n)
+        buf.from_numpy(a.astype(float_dtype()))
+        return buf
+    return a
+
+
 class WorkArrays:
     """Named vec3 work arrays of ``n`` entries, allocated on first use and owned by whoever holds
     this object (a :class:`engine.integrators.stepper.Stepper`, a linear solver's set-up, one static

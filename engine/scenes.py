@@ -18,7 +18,7 @@ and the spring force (S2) along the axis is f_i = E_i s_i - E_{i-1} s_{i-1} (s_j
 divided by the lumped mass m_i = (rho_{i-1} h_{i-1} + rho_i h_i)/2 is the finite-difference stencil
 of (1/rho) d/dp (E (dx/dp - 1)) (notes, "From last class"). The nodes move along the axis only, so
 the rod is stepped in that one coordinate (engine.energies.axial): a run is one launch of
-engine.integrators.kernels.axial_steps, the same explicit updates as every model, backward Euler by
+engine.integrators.batched_steps.axial_steps, the same explicit updates as every model, backward Euler by
 the tridiagonal solve of engine.solvers.thomas. ``Rod.model`` is the same rod as a 3D chain Model
 (for the general solvers). Theory of the schemes on the rod: engine.theory.schemes.
 """
@@ -117,7 +117,7 @@ def serial_loop_limit() -> int | None:
     return _loop_limit[arch]
 
 
-# Loop iterations of one step of engine.integrators.kernels.axial_steps, per node: velocity
+# Loop iterations of one step of engine.integrators.batched_steps.axial_steps, per node: velocity
 # Verlet (kick-drift, forces, kick) and backward Euler (Thomas: set-up and elimination,
 # substitution, drift) make three passes over the nodes, the others two; the energies of the
 # step two more. Velocity Verlet also makes one pass before the first step.
@@ -302,7 +302,7 @@ class Rod:
 
     def run(self, state: RodState, dt: float, n_steps: int, method: str = "symplectic-euler",
             energy_bound: float | None = None, step_offset: int = 0):
-        """Advance ``n_steps`` steps of ``method`` in one launch (engine.integrators.kernels.axial_steps);
+        """Advance ``n_steps`` steps of ``method`` in one launch (engine.integrators.batched_steps.axial_steps);
         returns (kinetic, potential) arrays, one entry per step. A step whose total energy is not finite
         or exceeds ``energy_bound`` raises the monitor's BlowUpError naming that step (``step_offset`` +
         index), with the energies up to it. The state stays at that step.
@@ -311,7 +311,7 @@ class Rod:
         Vulkan) the steps are split over as many launches as keep each one below it (the same
         steps: velocity Verlet's a(x) at a launch's start is the one its last step computed); a rod
         too long for one step there is refused (RuntimeConfigError)."""
-        from engine.integrators import kernels
+        from engine.integrators import batched_steps, kernels
         from engine.integrators.monitor import Monitor
 
         if not (np.isfinite(dt) and dt > 0):
@@ -333,13 +333,13 @@ class Rod:
         parts, done = [], 0
         while done < n_steps:
             k = min(n_steps - done, per_launch)
-            kin, pot = kernels.energy_buffers(k)
-            stop = kernels.axial_steps(state.x, state.v, a, self._h, self._E, self._m, self._inv_m, float(dt), k,
-                                       kin, pot, bound, Cp, Dp, kernels.METHODS[method])
+            kin, pot = batched_steps.energy_buffers(k)
+            stop = batched_steps.axial_steps(state.x, state.v, a, self._h, self._E, self._m, self._inv_m, float(dt), k,
+                                             kin, pot, bound, Cp, Dp, kernels.METHODS[method])
             try:
                 with np.errstate(over="ignore"):  # K + W of a blown-up step may overflow
-                    parts.append(kernels.collect(kin, pot, stop, k, state, float(dt), monitor,
-                                                 step_offset + done))
+                    parts.append(batched_steps.collect(kin, pot, stop, k, state, float(dt), monitor,
+                                                       step_offset + done))
             except BlowUpError as exc:
                 if parts:  # the energies of the earlier launches too, up to the bad step
                     exc.kinetic = np.concatenate([p[0] for p in parts] + [exc.kinetic])

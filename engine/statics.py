@@ -5,8 +5,9 @@ energy": the rest shape under load is the minimiser of the potential) solves
 
     min_x  Pi(x) = W(x) - sum_{free i} m_i g . x_i        with x_i = x0_i for pinned i        (P)
 
-i.e. the net force f_i(x) + m_i g = 0 at every free vertex (f = -grad W).  Newton with the
-PSD Hessian H (springs (S4), bending Gauss-Newton) and a Levenberg term:
+i.e. the net force f_i(x) + m_i g = 0 at every free vertex (f = -grad W).  Newton (the engine's one
+minimiser, engine.newton.minimize, in its Levenberg mode; the backward-Euler step uses the same
+loop) with the PSD Hessian H (springs (S4), bending Gauss-Newton) and a Levenberg term:
 
     (H(x) + mu M) dx = f(x) + M g      (free rows; pinned dx = 0, engine.solvers (L2))        (N2)
     mu = nu lambda_ref min(1, r) + 1e-14 lambda_ref
@@ -69,19 +70,14 @@ import taichi as ti
 from engine.errors import ParameterError
 from engine.stability import gershgorin_lambda_max, lambda_max_power
 from engine.solvers import SOLVERS, SolverError, make_solver
-from engine.fields import (WorkArrays, axpy_into, copy_vec3, dot_vec3, float_dtype, mass_dot, scalar_array, vec3_array,
-                           vec3_ndarray, zero_vec3)
+from engine import newton
+from engine.fields import WorkArrays, float_dtype, mass_dot, scalar_array, vec3_array, vec3_ndarray, zero_vec3
 from engine.model import Model
 
 __all__ = ["StaticResult", "solve_static"]
 
-ARMIJO_C1 = 1e-4
-MAX_BACKTRACKS = 30
-MAX_REJECTIONS = 12
-NU_MIN, NU_MAX = 1e-10, 1e8
-NU_START, NU_DOWN, NU_UP = 1e-3, 2.0, 4.0
-MAX_STALLS = 5
 INEXACT_RESIDUAL = 1e-3  # a linear solve that did not reach linear_tol is still used up to this residual
+EXACT_RETRY = 10         # after the exact Hessian failed, retry it every EXACT_RETRY Newton steps
 
 
 class StaticResult(NamedTuple):
@@ -123,6 +119,60 @@ def _lambda_ref(model: Model, x) -> float:
     return lam if lam > 0.0 else 1.0
 
 
+class _StaticProblem(newton.Problem):
+    """(P) for engine.newton: Pi, r and f + M g (in ``rhs``) at x, the direction of (N2)."""
+
+    def __init__(self, model: Model, x_start: np.ndarray, solver, tol: float, exact_below: float):
+        n = model.n
+        self.model, self.solver, self.tol, self.exact_below = model, solver, tol, exact_below
+        self.xref = vec3_ndarray(n, x_start)
+        self.rhs = vec3_ndarray(n)
+        self.mass = model.mass[:, None]
+        self.g = model.gravity[None, :]
+        self.free = model.free
+        self.has_gravity = bool(model.gravity.any()) and bool(self.free.any())
+        self.weight_scale = (float(np.linalg.norm(self.mass[self.free] * self.g, axis=1).max())
+                             if self.has_gravity else 0.0)
+        self.elastic_forces = None
+
+    def residual(self, x, k: int) -> float:
+        """rhs = f + M g = -grad Pi on free vertices; returns r (module docstring)."""
+        model, f = self.model, self.rhs
+        zero_vec3(f)
+        model.add_elastic_forces(x, f)
+        fe = f.to_numpy().astype(np.float64)
+        net = fe + self.mass * self.g
+        net[~self.free] = 0.0
+        f.from_numpy(net.astype(float_dtype()))
+        worst = float(np.linalg.norm(net, axis=1).max()) if self.free.any() else 0.0
+        scale = self.weight_scale if self.has_gravity else float(np.linalg.norm(fe, axis=1).max())
+        self.elastic_forces = fe
+        return 0.0 if worst == 0.0 else (worst / scale if scale > 0.0 else math.inf)
+
+    def objective(self, x) -> float:
+        model = self.model
+        Pi = model.elastic_energy(x)
+        if self.has_gravity:
+            Pi -= _gravity_work(x, self.xref, model.mass_nd, model.inv_mass_nd, model.gravity_vec)
+        return Pi
+
+    def converged(self, r: float) -> bool:
+        return r <= self.tol
+
+    def near(self, r: float) -> bool:
+        return r < self.exact_below
+
+    def direction(self, x, dx, k: int, psd: bool, mu: float):
+        return self.solver.solve(self.model, x, self.rhs, dx, mu, 1.0, psd=psd)   # (H + mu M) dx = f + M g
+
+    def roundoff(self, x, phi: float) -> float:
+        """What a change of Pi below which is not measurable: 64 eps (|W| + |Pi|)."""
+        return 64.0 * np.finfo(np.float64).eps * (abs(self.model.elastic_energy(x)) + abs(phi) + 1e-300)
+
+    def mass_norm2(self, dx) -> float:
+        return mass_dot(dx, dx, self.model.mass_nd, self.model.inv_mass_nd)
+
+
 def solve_static(model: Model, x0=None, tol: float = 1e-10, max_iter: int = 100, solver: str = "cholesky", *,
                  linear_tol: float = 1e-10, max_linear_iter: int = 10000,
                  raise_on_failure: bool = True, exact: bool = True, exact_below: float = 1e-2,
@@ -150,135 +200,22 @@ def solve_static(model: Model, x0=None, tol: float = 1e-10, max_iter: int = 100,
     if x_start.shape != (n, 3) or not np.isfinite(x_start).all():
         raise ParameterError(f"x0 must be finite with shape ({n}, 3), got {x_start.shape}")
 
-    lin = make_solver(solver, tol=linear_tol, max_iter=max_linear_iter)
+    problem = _StaticProblem(model, x_start, make_solver(solver, tol=linear_tol, max_iter=max_linear_iter),
+                             tol, exact_below)
     x = vec3_ndarray(n, x_start)
-    xref = vec3_ndarray(n, x_start)
     work = WorkArrays(n)  # this solve's own work arrays
-    f, dx, trial = work.vec3("f"), work.vec3("dx"), work.vec3("trial")
-    mass = model.mass[:, None]
-    g = model.gravity[None, :]
-    free = model.free
-    has_gravity = bool(model.gravity.any()) and bool(free.any())
-    weight_scale = float(np.linalg.norm(mass[free] * g, axis=1).max()) if has_gravity else 0.0
-
-    def net_and_residual(xa):
-        """f = -grad Pi on free vertices (in ``f``); returns (r, f_elastic numpy)."""
-        zero_vec3(f)
-        model.add_elastic_forces(xa, f)
-        fe = f.to_numpy().astype(np.float64)
-        net = fe + mass * g
-        net[~free] = 0.0
-        f.from_numpy(net.astype(float_dtype()))
-        worst = float(np.linalg.norm(net, axis=1).max()) if free.any() else 0.0
-        scale = weight_scale if has_gravity else float(np.linalg.norm(fe, axis=1).max())
-        r = 0.0 if worst == 0.0 else (worst / scale if scale > 0.0 else math.inf)
-        return r, fe
-
-    def mass_norm2(a) -> float:
-        return mass_dot(a, a, model.mass_nd, model.inv_mass_nd)
-
-    def potential(xa) -> float:
-        Pi = model.elastic_energy(xa)
-        if has_gravity:
-            Pi -= _gravity_work(xa, xref, model.mass_nd, model.inv_mass_nd, model.gravity_vec)
-        return Pi
-
-    def roundoff(xa, Pi_a) -> float:
-        """What a change of Pi below which is not measurable: 64 eps (|W| + |Pi|)."""
-        return 64.0 * np.finfo(np.float64).eps * (abs(model.elastic_energy(xa)) + abs(Pi_a) + 1e-300)
-
-    lam_ref = _lambda_ref(model, x)
-    nu = NU_START
-    stalls = 0
-    Pi = potential(x)
-    r, fe = net_and_residual(x)
-    history = [r]
-    iterations = 0
-    rejections = 0
-    message = ""
-    exact_ok = True  # try the exact Hessian once close (quadratic convergence where the PSD one is slow)
-    while r > tol:
-        if iterations >= max_iter:
-            message = f"max_iter={max_iter} Newton steps reached"
-            break
-        mu = nu * lam_ref * min(1.0, r) + 1e-14 * lam_ref
-        use_exact = exact and exact_ok and r < exact_below
-        info = lin.solve(model, x, f, dx, mu, 1.0, psd=not use_exact)  # (H + mu M) dx = f + M g
-        # inexact Newton: a solve short of linear_tol (a direct solve of an ill-conditioned system stops
-        # at ~ cond x eps) still gives a descent direction that cuts r by about its residual
-        usable = info.converged or (math.isfinite(info.residual) and info.residual <= INEXACT_RESIDUAL)
-        slope = dot_vec3(f, dx) if usable else 0.0  # -(grad Pi . dx) > 0 for a descent direction
-        if use_exact and not (usable and slope > 0.0):
-            exact_ok = False  # indefinite here: back to the PSD Hessian
-            continue
-        if not usable:
-            message = info.describe()
-            break
-        s = 1.0
-        accepted = False
-        if slope <= roundoff(x, Pi):
-            # the full step's predicted decrease of Pi is below Pi's round-off: Armijo's test would
-            # compare noise (and accept a random fraction of the step); the residual decides instead
-            axpy_into(x, dx, 1.0, trial)
-            r_t, _ = net_and_residual(trial)
-            if r_t < r:
-                accepted, Pi_t = True, potential(trial)
-            else:
-                net_and_residual(x)  # restore f at x
-        for _ in range(0 if accepted else MAX_BACKTRACKS + 1):
-            axpy_into(x, dx, s, trial)
-            Pi_t = potential(trial)
-            if Pi_t <= Pi - ARMIJO_C1 * s * slope:
-                accepted = True
-                break
-            s *= 0.5
-        if not accepted:
-            # no measurable decrease: round-off level near the minimum, or a poor direction
-            axpy_into(x, dx, 1.0, trial)
-            r_t, _ = net_and_residual(trial)
-            if r_t < r:
-                accepted, s, Pi_t = True, 1.0, potential(trial)
-            else:
-                net_and_residual(x)  # restore f at x
-                if use_exact:
-                    exact_ok = False
-                    continue
-                rejections += 1
-                nu = min(nu * 100.0, NU_MAX)
-                if rejections > MAX_REJECTIONS:
-                    message = "line search found no decrease of the potential (round-off or a singular direction)"
-                    break
-                continue
-        if use_exact and s < 1.0:
-            exact_ok = False
-        copy_vec3(trial, x)
-        iterations += 1
-        rejections = 0
-        # trust-region-like update of nu from the gain ratio of the accepted step
-        curv = slope - mu * mass_norm2(dx)  # dx.H dx, from (H + mu M) dx = f + M g
-        predicted = s * slope - 0.5 * s * s * curv
-        rho = (Pi - Pi_t) / predicted if predicted > 0.0 else 0.0
-        if s == 1.0 and rho > 0.75:
-            nu = max(nu / NU_DOWN, NU_MIN)
-        elif s < 1.0 or rho < 0.25:
-            nu = min(nu * NU_UP, NU_MAX)
-        decrease = Pi - Pi_t
-        Pi = Pi_t
-        r_prev = r
-        r, fe = net_and_residual(x)
-        history.append(r)
-        # round-off floor: Pi no longer measurably decreases and r stops improving
-        noise = roundoff(x, Pi)
-        stalls = stalls + 1 if (decrease <= noise and r > 0.5 * r_prev) else 0
-        if stalls >= MAX_STALLS and r > tol:
-            message = (f"stalled at the round-off floor of the forces for {MAX_STALLS} steps "
-                       f"(stiff springs: forces ~ stiffness x 1e-16 m); ask for tol >= {4 * r:.1e}")
-            break
-        if verbose:
-            print(f"  newton {iterations}: r={r:.3e} step={s:g} rho={rho:.2f} "
-                  f"mu/lam={mu / lam_ref:.2e} exact={use_exact}")
-        if not exact_ok and iterations % 10 == 0:
-            exact_ok = True  # retry the exact Hessian now and then
+    opts = newton.Options(max_iter=max_iter, exact=exact, exact_retry=EXACT_RETRY, levenberg=True,
+                          lambda_ref=_lambda_ref(model, x), inexact_residual=INEXACT_RESIDUAL)
+    res = newton.minimize(problem, x, work.vec3("trial"), work.vec3("dx"), opts, verbose=verbose)
+    r, iterations, history = res.residual, res.iterations, res.history
+    message = {"max_iter": f"max_iter={max_iter} Newton steps reached",
+               "linear": res.linear[-1].describe() if res.linear else "",
+               "no_decrease": "line search found no decrease of the potential (round-off or a singular direction)",
+               "stalled": (f"stalled at the round-off floor of the forces for {newton.MAX_STALLS} steps "
+                           f"(stiff springs: forces ~ stiffness x 1e-16 m); ask for tol >= {4 * r:.1e}")}.get(
+        res.status, "")
+    fe = problem.elastic_forces
+    mass, g = model.mass[:, None], model.gravity[None, :]
 
     xs = x.to_numpy().astype(np.float64)
     xs[model.pinned] = x_start[model.pinned]

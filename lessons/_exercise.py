@@ -75,7 +75,7 @@ def empty_functions(path: Path, names) -> list[str]:
 
 def load_student_module(path: Path):
     """Import the student's module from ``path`` (a fresh module object, not cached by name). The
-    grader loads it in its child under the guard instead (lessons.app.sandbox); tests load the
+    grader loads it in its child under the guard instead (lessons.app.sandbox_guard); tests load the
     lessons' own reference solutions with this."""
     spec = importlib.util.spec_from_file_location(f"student_{Path(path).stem}", path)
     module = importlib.util.module_from_spec(spec)
@@ -119,7 +119,7 @@ def call_student(name: str, fn, *args, kernel: bool = True):
 
 class LocalFunction:
     """The student's function in this process (the tests of the checks). The grader hands the
-    checks a remote one instead (lessons.app.grading): the same ``via``, with the student's code
+    checks a remote one instead (lessons.app.grading_remote): the same ``via``, with the student's code
     in a guarded child process and the verdicts here.
 
     ``via(factory, *args)`` is the function around which ``factory(func, *args)`` builds a
@@ -252,6 +252,47 @@ def factor_text(r: float | None) -> str:
         if float(text) != 1.0:
             return f"{text} times"
     return f"{r!r} times"
+
+
+def named_mistake(measured, mistakes, scale=None) -> str:
+    """The text of the first known mistake, of ``mistakes`` ((wrong results, text) pairs, in order),
+    whose results the student's are (:func:`matches`), or ''."""
+    return next((text for wrong, text in mistakes if matches(measured, wrong, scale)), "")
+
+
+def explain_failure(name: str, got, ref, tol: float, scale=None, *, where: Callable[[int], str],
+                    otherwise: Callable[[int], str], of: str, mistakes=(), checks=(), sign: str = "",
+                    after_mistakes=(), factor_notes: dict | None = None) -> str:
+    """Why the student's ``name`` returned ``got`` where ``ref`` was expected, for a check that failed
+    (a deviation above ``tol``, measured against ``scale`` as :func:`deviation` does): the first rung
+    of this ladder that holds, with i the first call off by more than ``tol``:
+
+    1. NaN or inf in ``got``: '<name> returns NaN or inf at <where(i)>';
+    2. ``checks``, in order: (test, text) pairs, ``test()`` called only when this rung is reached;
+    3. when ``sign`` is given, ``got`` is minus ``ref``: '<name> has the wrong sign: <sign>';
+    4. a known mistake of ``mistakes`` ((wrong results, text) pairs; :func:`named_mistake`): '<name> <text>';
+    5. ``after_mistakes``: (test, text) pairs as in 2;
+    6. a constant factor from ``ref`` (:func:`factor_text`): '<name> is <factor> <of>', followed by
+       ``factor_notes``' text for that factor where it has one;
+    7. else ``otherwise(i)``."""
+    i = first_bad(got, ref, tol, scale)
+    r = factor_text(ratio(got, ref))
+    named = named_mistake(got, mistakes, scale)
+    if not np.all(np.isfinite(got)):
+        return f"{name} returns NaN or inf at {where(i)}"
+    for test, text in checks:
+        if test():
+            return text
+    if sign and r == "minus":
+        return f"{name} has the wrong sign: {sign}"
+    if named:
+        return f"{name} {named}"
+    for test, text in after_mistakes:
+        if test():
+            return text
+    if r:
+        return f"{name} is {r} {of}" + (factor_notes or {}).get(r, "")
+    return otherwise(i)
 
 
 def agreement(claim: str, id: str, dev: float, tol: float, reason: str, unit: str = "") -> Experiment:

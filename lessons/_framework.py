@@ -9,15 +9,12 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import json
 import math
-import os
 import re
 import sys
 import textwrap
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Callable
 
 from engine.constants import EXPLICIT, INTEGRATOR_NAMES, SOLVERS
@@ -37,7 +34,7 @@ def param(default, help: str, unit: str = "", *, gt=None, ge=None, lt=None, le=N
                                                 optional=optional))
 
 
-def _field_type(f: dataclasses.Field) -> type:
+def field_type(f: dataclasses.Field) -> type:
     t = f.type if isinstance(f.type, str) else getattr(f.type, "__name__", str(f.type))
     return {"float": float, "int": int, "str": str, "bool": bool}[t]
 
@@ -61,7 +58,7 @@ def validate_config(cfg) -> None:
         if not meta or (value is None and meta.get("optional")):
             continue
         flag = "--" + f.name.replace("_", "-")
-        kind = _field_type(f)
+        kind = field_type(f)
         if meta.get("choices"):
             if value not in meta["choices"]:
                 raise ParameterError(f"{flag} must be {range_text(meta)} (got {value!r})")
@@ -90,22 +87,22 @@ class Terminated(BaseException):
         return self.args[0] if self.args and isinstance(self.args[0], int) else int(_signal.SIGTERM)
 
 
-_pending_signal: list = []  # the signal a handler saw; re-raised at the next check point
+pending_signal: list = []  # the signal a handler saw; re-raised at the next check point
 
 
 def note_signal(signum: int) -> None:
     """Called by the CLI's signal handlers before they raise: if the exception they raise is
     swallowed (a signal landing inside a ``__del__`` is only printed), :func:`check_interrupt`
     raises it again at the next chunk of the run."""
-    _pending_signal.append(signum)
+    pending_signal.append(signum)
 
 
 def check_interrupt() -> None:
     """Raise KeyboardInterrupt / :class:`Terminated` if a signal arrived and was not acted on."""
     import signal as _signal
-    if _pending_signal:
-        signum = _pending_signal[-1]
-        _pending_signal.clear()
+    if pending_signal:
+        signum = pending_signal[-1]
+        pending_signal.clear()
         raise KeyboardInterrupt() if signum == _signal.SIGINT else Terminated(signum)
 
 
@@ -316,7 +313,7 @@ class Lesson:
     config: type
     stages: list[Stage]
     order: int = 100
-    camera: str = "outside"  # the default camera of its runs' views (lessons.app.blueprint.CAMERAS)
+    camera: str = "outside"  # the default camera of its runs' views (lessons.views.CAMERAS)
     validate: Callable[[Any], None] | None = None  # extra up-front checks (e.g. build meshes)
 
 
@@ -459,15 +456,3 @@ def _summarise_integrators(used: list[str]) -> str:
         name = u.split(": ", 1)[1]
         counts[name] = counts.get(name, 0) + 1
     return "; ".join(f"{k} x{v}" for k, v in counts.items())
-
-
-def write_json_atomic(path: str | os.PathLike, data, complete: bool = True) -> Path:
-    """Write ``data`` as JSON to ``path`` atomically (lessons.app.outfile: a regular file or a new name
-    only; a write error keeps the earlier file); returns where it went (the final name, or
-    ``<stem>.partial.json`` when not ``complete``)."""
-    from lessons.app.outfile import OutputFile
-
-    out = OutputFile(path)
-    out.prepare()
-    out.write_bytes((json.dumps(data, indent=1) + "\n").encode("utf-8"))
-    return out.commit(complete)

@@ -16,7 +16,7 @@ from engine.model import Model
 from engine.stability import stable_dt_estimate
 from engine.theory.schemes import backward_euler_damping_rate as be_damping_rate
 from engine.waves import ModeProbe, phase_frequency
-from lessons.app.blueprint import RunView
+from lessons.views import RunView
 
 from ._measure import damped_frequency
 from ._scene import simulate

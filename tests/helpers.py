@@ -4,7 +4,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from lessons.app.recorder import NullRecorder
+from lessons.app.recorder_null import NullRecorder
 from lessons._framework import StageContext, Stepping
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -46,11 +46,12 @@ def test_the_engine_imports_neither_rerun_nor_lessons():
 def test_rerun_is_imported_by_the_recorder_alone():
     users = sorted(str(p.relative_to(ROOT)) for p in sorted((ROOT / "lessons").rglob("*.py"))
                    if "rerun" in _imports(p))
-    # the recorder, in parts: its geometry and energy plots, and the blueprint (layout) it sends;
-    # lessons/tools/viewer_processes.py drives the real viewer (headless screenshots), it writes
-    # no recording
+    # the recorder, in parts: its geometry and energy plots, the blueprint (layout) it sends, and
+    # the reading of a recording back (recorder_read.py); lessons/tools/viewer_processes.py drives
+    # the real viewer (headless screenshots), it writes no recording
     assert users == ["lessons/app/blueprint.py", "lessons/app/recorder.py", "lessons/app/recorder_energies.py",
-                     "lessons/app/recorder_geometry.py", "lessons/tools/viewer_processes.py"], users
+                     "lessons/app/recorder_geometry.py", "lessons/app/recorder_read.py",
+                     "lessons/tools/viewer_processes.py"], users
 
 
 def test_the_lessons_do_not_import_the_tools():
@@ -156,3 +157,117 @@ def test_tests_mirror_the_tree():
     offenders = {str(p.relative_to(ROOT)): sorted(m for m in _modules(p) if m.startswith(("lessons.app", "lessons.tools")))
                  for p in sorted((tests / "engine").glob("*.py"))}
     assert {k: v for k, v in offenders.items() if v} == {}
+
+
+def _source_files(*folders: str) -> list[Path]:
+    return [p for folder in folders for p in sorted((ROOT / folder).rglob("*.py"))]
+
+
+def _dynamic_imports(path: Path) -> set:
+    """Module names imported through importlib.import_module / __import__ / spec_from_file_location with a
+    literal (or the literal head of an f-string: ``f"lessons.{name}"`` gives ``lessons.``)."""
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+        if not (isinstance(node, ast.Call) and node.args):
+            continue
+        name = getattr(node.func, "attr", getattr(node.func, "id", ""))
+        if name not in ("import_module", "__import__"):
+            continue
+        arg = node.args[0]
+        if isinstance(arg, ast.Constant) and isinstance(arg.value, str):
+            out.add(arg.value)
+        elif isinstance(arg, ast.JoinedStr) and arg.values and isinstance(arg.values[0], ast.Constant):
+            out.add(str(arg.values[0].value))
+    return out
+
+
+def _lesson_files() -> list[Path]:
+    """Every module of the lessons floor: the lesson packages and lessons/*.py, not the app (lessons/app),
+    the viewer tools (lessons/tools) or the program's entry (lessons/__main__.py)."""
+    return [p for p in _source_files("lessons") if p.relative_to(ROOT / "lessons").parts[0] not in ("app", "tools")
+            and p.name != "__main__.py"]
+
+
+def test_the_lessons_do_not_import_the_app_even_through_importlib():
+    """The app (recorder, blueprint, output files, CLI, grader) is the top floor: it imports the lessons,
+    never the other way (lessons say how a run is shown with lessons.views, plain data)."""
+    files = _lesson_files()
+    offenders = {}
+    for p in files:
+        names = _modules(p) | _dynamic_imports(p)
+        bad = sorted(m for m in names if m in ("lessons.app", "lessons.tools") or m.startswith(("lessons.app.",
+                                                                                                 "lessons.tools.")))
+        if bad:
+            offenders[str(p.relative_to(ROOT))] = bad
+    assert not offenders, f"lesson modules importing the app or the tools: {offenders}"
+    assert len(files) > 30
+    # the scan sees dynamic imports: the app's registry loads the lesson packages that way
+    assert "lessons." in _dynamic_imports(ROOT / "lessons" / "app" / "registry.py")
+
+
+def test_no_module_imports_another_modules_private_name():
+    """A name with a leading underscore is its module's own: one another module needs is public."""
+    offenders = []
+    for p in _source_files("engine", "lessons", "bench"):
+        for node in ast.walk(ast.parse(p.read_text(), filename=str(p))):
+            if isinstance(node, ast.ImportFrom):
+                private = [a.name for a in node.names if a.name.startswith("_") and not a.name.startswith("__")]
+                if private:
+                    offenders.append(f"{p.relative_to(ROOT)}:{node.lineno} {node.module} {private}")
+    assert not offenders, offenders
+
+
+def test_a_lesson_imports_and_runs_without_rerun_or_the_app():
+    """Every lesson module imports, and a stage runs, with rerun and lessons.app made unimportable."""
+    import subprocess
+    import sys
+    code = r'''
+import importlib, importlib.abc, pkgutil, sys, io
+class Block(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path, target=None):
+        if name.split(".")[0] in ("rerun", "rerun_bindings") or name == "lessons.app" or name.startswith(
+                ("lessons.app.", "lessons.tools")):
+            raise ImportError(f"blocked for this test: {name}")
+sys.meta_path.insert(0, Block())
+import lessons
+seen = []
+for info in pkgutil.walk_packages(lessons.__path__, "lessons."):
+    if info.name.startswith(("lessons.app", "lessons.tools")) or info.name == "lessons.__main__":
+        continue
+    importlib.import_module(info.name)
+    seen.append(info.name)
+assert len(seen) > 30, seen
+import engine.runtime as rt
+rt.init()
+from lessons._framework import run_lesson
+from lessons.rod_waves import LESSON
+class Null:
+    enabled = False
+    def __getattr__(self, name):
+        return lambda *a, **k: None
+rows = []
+assert run_lesson(LESSON, LESSON.config(), Null(), [1], out=io.StringIO(), err=io.StringIO(), quiet=True, results=rows)
+assert len(rows) == 4 and not [m for m in sys.modules if m.startswith(("rerun", "lessons.app"))]
+print("ok", len(seen))
+'''
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, cwd=ROOT)
+    assert done.returncode == 0 and done.stdout.startswith("ok"), done.stderr[-3000:]
+
+
+def test_one_newton_loop_in_the_engine():
+    """The static solve and the backward-Euler step minimise through engine.newton.minimize: no other
+    engine module holds a line search (its constants) or calls a linear solve in a loop of its own."""
+    users = sorted(str(p.relative_to(ROOT)) for p in _source_files("engine") if "engine.newton" in _modules(p))
+    assert users == ["engine/integrators/implicit.py", "engine/statics.py"], users
+    holders = sorted(str(p.relative_to(ROOT)) for p in _source_files("engine")
+                     if any(isinstance(n, ast.Assign) and any(getattr(t, "id", "") in ("ARMIJO_C1", "MAX_BACKTRACKS")
+                                                             for t in n.targets)
+                            for n in ast.walk(ast.parse(p.read_text()))))
+    assert holders == ["engine/newton.py"], holders
+
+
+def test_no_source_module_is_over_500_lines():
+    """Modules are split along what they are about before they grow past 500 lines."""
+    long = {str(p.relative_to(ROOT)): n for p in _source_files("engine", "lessons", "bench")
+            if (n := len(p.read_text().splitlines())) > 500}
+    assert not long, long

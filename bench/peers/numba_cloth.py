@@ -2,7 +2,7 @@
 
 :class:`NumbaCloth` steps the cloth of :func:`engine.scenes.cloth` (any Model with springs and
 optional notes-variant bending) by symplectic Euler, with the formulas of the engine
-(engine/energies/springs.py, bending.py, integrators/kernels.py):
+(engine/energies/springs.py, bending.py, integrators/kernels.py, cloth_kernels.py):
 
 * springs, W_e = 1/2 c_e (l/L - 1)^2: per vertex i, f_i = sum_{e ~ i} -(c_e/L_e)(1/L_e - 1/l)(x_i - x_j);
 * bending (the notes' energy), W_e = 1/2 k_e d^2 with d = theta - theta_bar wrapped into [-pi, pi):

@@ -30,7 +30,7 @@ _kernels: dict = {}
 _wp = None
 
 
-def _warp():
+def import_warp():
     """Import and initialise warp (once); ImportError with a one-line reason when it is missing."""
     global _wp
     if _wp is None:
@@ -43,12 +43,12 @@ def _warp():
     return _wp
 
 
-def _build(dtype):
+def build_kernels(dtype):
     """The kernels for one precision (float64: wp.float64 / wp.vec3d; float32: wp.float32 / wp.vec3)."""
     key = np.dtype(dtype).name
     if key in _kernels:
         return _kernels[key]
-    wp = _warp()
+    wp = import_warp()
     scalar = wp.float64 if key == "float64" else wp.float32
     vec = wp.vec3d if key == "float64" else wp.vec3
     # one Warp module per precision: its kernels compile together, once
@@ -195,7 +195,7 @@ class WarpCloth(WarpStepper):
 
     def __init__(self, model, springs, bending=None, dtype=np.float64):
         a = peers.cloth_arrays(model, springs, bending, dtype)
-        kern = _build(a["dtype"])
+        kern = build_kernels(a["dtype"])
         wp = self._wp = kern["wp"]
         self._k = kern
         self.n, self.dtype, self.n_hinges = a["n"], a["dtype"], a["n_hinges"]

@@ -1,4 +1,4 @@
-"""The engine's explicit step of a Baraff-Witkin membrane (engine/energies/membrane.py, (M2): the
+"""The engine's explicit step of a Baraff-Witkin membrane (engine/energies/triangle.py, (M2): the
 stretch and shear conditions of each triangle in its rest (u, v) frame) written with NVIDIA Warp on
 ``device="cpu"``, as :mod:`bench.peers.warp_cloth` writes the springs and hinges.
 
@@ -13,17 +13,17 @@ The launches are recorded once and replayed. Warp's CPU backend runs each launch
 import numpy as np
 
 from bench import peers
-from bench.peers.warp_cloth import WarpStepper, _warp
-from bench.peers.warp_cloth import _build as _build_cloth
+from bench.peers.warp_cloth import WarpStepper, import_warp
+from bench.peers.warp_cloth import build_kernels as _build_cloth
 
 _kernels: dict = {}
 
 
-def _build(dtype):
+def build_kernels(dtype):
     key = np.dtype(dtype).name
     if key in _kernels:
         return _kernels[key]
-    wp = _warp()
+    wp = import_warp()
     scalar = wp.float64 if key == "float64" else wp.float32
     vec = wp.vec3d if key == "float64" else wp.vec3
     opts = dict(enable_backward=False, module=f"bench_peers_warp_membrane_{key}")
@@ -93,7 +93,7 @@ class WarpMembrane(WarpStepper):
         if membrane.model != "baraff-witkin" or membrane.has_damping:
             raise ValueError("the Warp membrane peer writes Baraff-Witkin's undamped conditions only")
         dtype = np.dtype(dtype)
-        kern = _build(dtype)
+        kern = build_kernels(dtype)
         wp = self._wp = kern["wp"]
         self._k = kern
         self.n, self.dtype = int(model.n), dtype

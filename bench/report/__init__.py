@@ -6,7 +6,10 @@ JSON, one per process configuration), ``startup-{cold,after-plain-exit,warm}.jso
 may be missing: the report says what is missing instead of failing.
 
     derive.py    loading, the derived figures (per-step time, ns per vertex, bandwidth floor and
-                 fraction of it, scaling exponents), the targets and why they are missed
+                 fraction of it, scaling exponents)
+    ratios.py    the engine against its peers (ratio per comparison, round by round when
+                 interleaved) and the agreement with a reference run
+    targets.py   the targets and why they are missed
     markdown.py  the Markdown text
     plots.py     the matplotlib plots
     (here)       ``build``, ``write`` and ``main`` (``python -m bench.report RAW_DIR``)
@@ -19,10 +22,12 @@ import shutil
 from pathlib import Path
 
 from bench.report.derive import (ALL_KERNELS, CONFIGS, STARTUP_RUNS, STEP_KERNELS, TARGET_FLOOR_FACTOR,
-                                 TARGET_SIDE, agreement, bandwidths, build, derive_floors, find, peer_ratios,
-                                 rows_from_pytest_benchmark, scaling_exponents, targets)
+                                 TARGET_SIDE, bandwidths, derive_floors, find, rows_from_pytest_benchmark,
+                                 scaling_exponents)
 from bench.report.markdown import markdown
 from bench.report.plots import plot_cost_vs_E, plot_cost_vs_N
+from bench.report.ratios import agreement, peer_ratios
+from bench.report.targets import targets
 
 __all__ = ["ALL_KERNELS", "CONFIGS", "STARTUP_RUNS", "STEP_KERNELS", "TARGET_FLOOR_FACTOR",
            "TARGET_SIDE", "against_text", "agreement", "bandwidths", "build", "derive_floors", "find", "main", "peer_ratios",
@@ -32,6 +37,40 @@ __all__ = ["ALL_KERNELS", "CONFIGS", "STARTUP_RUNS", "STEP_KERNELS", "TARGET_FLO
 
 REPO = Path(__file__).resolve().parents[2]
 REFERENCE_DIR = REPO / "bench" / "reference"  # the committed report (python -m bench.report RAW --reference)
+
+
+def _load_json(path: Path):
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def build(raw_dir) -> dict:
+    """The merged result document of one run, from its raw directory (written by bench/__main__.py):
+    ``bench-<config>.json`` (pytest-benchmark JSON, one per process configuration),
+    ``startup-{cold,after-plain-exit,warm}.json``, ``headline.json`` and ``run.json`` (timestamp,
+    profile, machine, wall times, errors).  Any of them may be missing: the document lists the
+    missing benchmark files instead of failing."""
+    raw = Path(raw_dir)
+    run = _load_json(raw / "run.json") or {}
+    rows, missing = [], []
+    for cfg in CONFIGS:
+        data = _load_json(raw / f"bench-{cfg}.json")
+        if data is None:
+            missing.append(f"bench-{cfg}.json")
+            continue
+        rows.extend(rows_from_pytest_benchmark(data))
+    machine = run.get("machine", {})
+    bw = bandwidths(rows)
+    derive_floors(rows, bw, int(machine.get("last_level_cache_bytes", 0) or 0))
+    doc = dict(run)
+    doc.update(rows=rows, bandwidth=bw, scaling=scaling_exponents(rows),
+               startup={k: _load_json(raw / f"startup-{k}.json") for k in STARTUP_RUNS},
+               headline=_load_json(raw / "headline.json"), missing=missing)
+    doc["peer_ratios"] = peer_ratios(rows)
+    doc["targets"] = targets(doc)
+    return doc
 
 
 def write(doc: dict, out_dir, stem: str, latest: bool = True) -> dict:

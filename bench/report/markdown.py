@@ -1,11 +1,12 @@
-"""The Markdown report of one run's merged document (bench/report/derive.py): machine, targets
-and why, headline, one section per benchmark group, scaling, threads and precision, start-up,
-the bandwidth floor, what was left out, and how it was measured."""
+"""The Markdown report of one run's merged document (``build``, bench/report/__init__.py): machine,
+targets and why, headline, one section per benchmark group, scaling, threads and precision,
+start-up, the bandwidth floor, what was left out, and how it was measured."""
 import math
 
 from bench import traffic
 from bench.config import MEMBRANE_IMPLICIT_GROUP, MEMBRANE_MODEL
-from bench.report.derive import ALL_KERNELS, CONFIGS, STARTUP_RUNS, STEP_KERNELS, TARGET_SIDE, find, ratio_text
+from bench.report.derive import ALL_KERNELS, CONFIGS, STARTUP_RUNS, STEP_KERNELS, TARGET_SIDE, find
+from bench.report.ratios import ratio_text
 from engine.constants import CFL_SAFETY
 
 

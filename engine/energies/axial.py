@@ -7,7 +7,7 @@ there the 3D spring energy (S1) and force (S2) reduce exactly to
 
 (s_j the segment strain) for every state without an inverted segment. Stepping the rod in one
 coordinate instead of three costs a third of the memory traffic and no square roots, which is
-what makes a run of many steps per launch cheap (engine.integrators.kernels.axial_steps).
+what makes a run of many steps per launch cheap (engine.integrators.batched_steps.axial_steps).
 """
 import taichi as ti
 

@@ -57,7 +57,7 @@ class Energy:
     elements = None             # (max(m, 1), k) i32 ndarray of element vertices
     block = None                # ti.func block(blocks, e, a: template, b: template) -> mat3 H_e,ab
     products: frozenset = frozenset()  # of "blocks", "pair-gather", "rank-one", "element-blocks"
-    # How the explicit fast kernels can take its forces (engine.integrators.kernels): "pair-gather"
+    # How the explicit fast kernels can take its forces (engine.integrators.cloth_kernels): "pair-gather"
     # (spring_gather over force_args()), "slot-gather" (a per-element pass, then a per-vertex gather
     # over force_args(): hinge_force_vectors + hinge_gather), "corner-gather" (a kernel of its own,
     # corner_force_launch(), writes per-element corner forces into per_corner, which the step

@@ -1,7 +1,7 @@
 """One hinge: its dihedral angle, the angle's derivatives and the bending energy terms of the angle.
 
 The single-hinge math of the bending energy (engine/energies/bending.py), written once as public
-ti.funcs on values: the energy's kernels, the fused cloth step (engine.integrators.kernels) and
+ti.funcs on values: the energy's kernels, the fused cloth step (engine.integrators.cloth_kernels) and
 the benchmark's force variants (bench/variants.py) all call these. Lengths in m, angles in rad,
 stiffness k in J (= N m), energies in J.
 

@@ -1,44 +1,12 @@
 """Membrane energies on triangles (stencils of k = 3): a constant-strain continuum triangle
-(St. Venant-Kirchhoff) and Baraff and Witkin's stretch and shear conditions.
+(St. Venant-Kirchhoff) and Baraff and Witkin's stretch and shear conditions, and Baraff and
+Witkin's damping of those conditions: the rest frames of the triangles and :class:`MembraneEnergy`.
 
-Both read a triangle's deformation in its rest frame (u, v), an orthonormal frame of the rest
-triangle's plane whose u axis is the projection of a chosen material direction (default: the x
-axis; the warp of a cloth). With the rest coordinates of the corners in that frame,
-Dm = [p1 - p0, p2 - p0] (2x2), the deformation gradient of the (linear) triangle is
-
-    F = [x1 - x0, x2 - x0] Dm^-1 = sum_a x_a g_a^T,   g1, g2 = the rows of Dm^-1,  g0 = -(g1 + g2)  (F1)
-
-(3x2; its columns w_u = dx/du and w_v = dx/dv are the images of the rest frame's axes), constant
-over the triangle. A is the rest area.
-
-Constant-strain triangle, St. Venant-Kirchhoff, with E = (F^T F - I)/2 (Green strain, 2x2):
-
-    W = A [ mu E:E + lambda/2 tr(E)^2 ],   S = lambda tr(E) I + 2 mu E,   dW/dx_a = A F S g_a   (M1)
-    H_ab = A [ (g_a . S g_b) I + lambda (F g_a)(F g_b)^T + mu (g_a . g_b) F F^T + mu (F g_b)(F g_a)^T ]
-
-with the plane-stress Lame parameters of a sheet of 2D Young's modulus Y (N/m) and Poisson's
-ratio nu:  mu = Y / (2 (1 + nu)),  lambda = Y nu / (1 - nu^2). Its small-strain limit is the
-isotropic linear membrane, so a static stretch measures Y and nu as set, on any mesh. The PSD
-variant keeps the positive part of S in the first term (the rest, lambda tr(M)^2 + 2 mu |sym M|^2
-for M = F^T dF, is never negative).
-
-Baraff and Witkin (1998), section 4.2: conditions on each triangle,
-
-    stretch  C_u = sqrt(A) (|w_u| - 1),  C_v = sqrt(A) (|w_v| - 1);   shear  C_s = sqrt(A) w_u . w_v
-    W = k_s/2 (C_u^2 + C_v^2) + k_h/2 C_s^2                                                     (M2)
-
-(their C carries the area a itself, which makes W grow with a^2 and the stiffness depend on the
-resolution; sqrt(A) makes W an integral over the rest area, k_s and k_h in N/m). For small strains
-(M2) is an orthotropic membrane with Young's moduli k_s along u and v, Poisson's ratio 0 (the
-stretch conditions do not couple u and v) and shear modulus k_h: isotropic only when
-k_h = k_s / 2. With n_u = w_u/|w_u|:
-
-    dW/dx_a = A [ k_s ((|w_u| - 1) g_a0 n_u + (|w_v| - 1) g_a1 n_v) + k_h s (g_a0 w_v + g_a1 w_u) ],  s = w_u . w_v
-    H_ab = A [ k_s (g_a0 g_b0 K_u + g_a1 g_b1 K_v) + k_h ( q_a q_b^T + s (g_a0 g_b1 + g_a1 g_b0) I ) ]
-           K_u = n_u n_u^T + (1 - 1/|w_u|) (I - n_u n_u^T),   q_a = g_a0 w_v + g_a1 w_u
-
-The PSD variant clips K's transverse coefficient at 0 (a compressed direction, as for springs)
-and drops the shear's s-term (Baraff and Witkin's own approximation: dC/dx^T dC/dx only).
+One triangle's math, the deformation gradient (F1) in the triangle's rest frame, the energies (M1)
+(St. Venant-Kirchhoff, with the plane-stress Lame parameters of :func:`lame`) and (M2) (Baraff and
+Witkin), their exact and PSD Hessian blocks and the conditions' gradients, is
+engine/energies/triangle.py; the kernels that sum it over the triangles are
+engine/energies/membrane_kernels.py.
 
 Baraff and Witkin's damping (section 4.5) pulls against the rate of each condition,
 
@@ -49,23 +17,19 @@ semi-definite; the explicit steps add d to the forces, backward Euler takes D at
 the step, D_n, into its incremental potential as 1/(2 dt) (x - x_n)^T D_n (x - x_n): the force
 -D_n v+ at the new velocity, and the Jacobian D_n/dt in its Newton matrix (their dd/dv; like
 them, the dd/dx part is left out).
-
-Kernels work per triangle (parallel, results per triangle) and gather per vertex over the
-corner incidence (entry = 3 triangle + corner), deterministic, as the hinge energy does.
 """
 import numpy as np
 import taichi as ti
 
-from engine.energies.base import Energy, gather_slot_blocks_kernel, slot_gather
+from engine.energies.base import Energy, gather_slot_blocks_kernel
+from engine.energies.membrane_kernels import (block_products_kernel, damping_blocks_kernel, damping_products_kernel,
+                                             gather_corners_kernel, membrane_block, membrane_energies_kernel,
+                                             membrane_energy_kernel, membrane_forces_kernel, membrane_hessian_kernel,
+                                             membrane_products_kernel, negate_corners)
+from engine.energies.triangle import MODELS, mat2
 from engine.errors import ModelError
-from engine.fields import (float_dtype, int_array, mat3_array2, scalar_array, vec3_array, vec3_array2, vec3_ndarray)
-from engine.fields import int_array2 as triangle_array
+from engine.fields import float_dtype, vec3_argument
 from engine.mesh import as_points3, incidence
-
-STVK, BARAFF_WITKIN = 0, 1
-MODELS = {"stvk": STVK, "baraff-witkin": BARAFF_WITKIN}
-vec2 = ti.math.vec2
-mat2 = ti.math.mat2
 
 
 class MembraneError(ModelError):
@@ -75,262 +39,6 @@ class MembraneError(ModelError):
 def lame(Y, nu) -> tuple:
     """(mu, lambda) (N/m) of a plane-stress sheet of 2D Young's modulus Y (N/m), Poisson's ratio nu."""
     return Y / (2.0 * (1.0 + nu)), Y * nu / (1.0 - nu * nu)
-
-
-# --------------------------------------------------------------------------------------------
-# One triangle
-# --------------------------------------------------------------------------------------------
-
-@ti.func
-def deformation_gradient(d1, d2, D):
-    """(w_u, w_v), the columns of F = [d1, d2] Dm^-1 (F1), for the deformed edges d1 = x1 - x0,
-    d2 = x2 - x0 and D = Dm^-1 (the membranes exercise's first function)."""
-    return d1 * D[0, 0] + d2 * D[1, 0], d1 * D[0, 1] + d2 * D[1, 1]
-
-
-@ti.func
-def triangle_frame(x: ti.template(), tris: ti.template(), Dinv: ti.template(), t):
-    """(w_u, w_v, g0, g1, g2) of triangle t (F1): F's columns and the corners' gradient rows."""
-    x0 = x[tris[t, 0]]
-    D = Dinv[t]
-    wu, wv = deformation_gradient(x[tris[t, 1]] - x0, x[tris[t, 2]] - x0, D)
-    g1 = vec2(D[0, 0], D[0, 1])
-    g2 = vec2(D[1, 0], D[1, 1])
-    return wu, wv, -(g1 + g2), g1, g2
-
-
-@ti.func
-def baraff_witkin_stress(wu, wv, A, ks, kh):
-    """(dW/dw_u, dW/dw_v) of Baraff and Witkin's energy (M2) of one triangle (the membranes
-    exercise's second function)."""
-    lu, lv, s = wu.norm(), wv.norm(), wu.dot(wv)
-    return A * (ks * (lu - 1.0) / lu * wu + kh * s * wv), A * (ks * (lv - 1.0) / lv * wv + kh * s * wu)
-
-
-@ti.func
-def positive_part(S):
-    """The positive part of a symmetric 2x2 matrix (its negative eigenvalues set to 0)."""
-    a, b, d = S[0, 0], S[0, 1], S[1, 1]
-    mean = 0.5 * (a + d)
-    r = ti.sqrt(0.25 * (a - d) * (a - d) + b * b)
-    hi, lo = mean + r, mean - r
-    out = S
-    if lo < 0.0:
-        out = mat2(0.0)
-        if hi > 0.0:
-            v = vec2(1.0, 0.0)
-            if b != 0.0:
-                v = vec2(b, hi - a)
-            elif d > a:
-                v = vec2(0.0, 1.0)
-            v = v / v.norm()
-            out = hi * v.outer_product(v)
-    return out
-
-
-@ti.func
-def membrane_terms(model: ti.template(), wu, wv, A, p0, p1):
-    """(W, S, P_u, P_v) of one triangle: its energy, St. Venant-Kirchhoff's second Piola-Kirchhoff
-    stress S (2x2; zero for Baraff-Witkin), and P_u = dW/dw_u, P_v = dW/dw_v, the derivatives by
-    F's columns, so that dW/dx_a = g_a0 P_u + g_a1 P_v ((M1): P = A F S; (M2))."""
-    W = 0.0
-    S = mat2(0.0)
-    Pu, Pv = ti.math.vec3(0.0), ti.math.vec3(0.0)
-    if ti.static(model == STVK):
-        mu, lam = p0, p1
-        E00 = 0.5 * (wu.dot(wu) - 1.0)
-        E11 = 0.5 * (wv.dot(wv) - 1.0)
-        E01 = 0.5 * wu.dot(wv)
-        tr = E00 + E11
-        W = A * (mu * (E00 * E00 + E11 * E11 + 2.0 * E01 * E01) + 0.5 * lam * tr * tr)
-        S = mat2([[lam * tr + 2.0 * mu * E00, 2.0 * mu * E01], [2.0 * mu * E01, lam * tr + 2.0 * mu * E11]])
-        Pu = A * (S[0, 0] * wu + S[1, 0] * wv)
-        Pv = A * (S[0, 1] * wu + S[1, 1] * wv)
-    else:
-        ks, kh = p0, p1
-        lu, lv, s = wu.norm(), wv.norm(), wu.dot(wv)
-        W = A * (0.5 * ks * ((lu - 1.0) ** 2 + (lv - 1.0) ** 2) + 0.5 * kh * s * s)
-        Pu, Pv = baraff_witkin_stress(wu, wv, A, ks, kh)
-    return W, S, Pu, Pv
-
-
-@ti.func
-def block_ab(model: ti.template(), psd: ti.template(), wu, wv, ga, gb, S, A, p0, p1):
-    """H_ab = d2W/dx_a dx_b (3x3) of one triangle, (M1) or (M2), exact or PSD."""
-    I3 = ti.math.eye(3)
-    H = ti.math.mat3(0.0)
-    if ti.static(model == STVK):
-        mu, lam = p0, p1
-        Sp = S
-        if ti.static(psd):
-            Sp = positive_part(S)
-        Fa = ga[0] * wu + ga[1] * wv
-        Fb = gb[0] * wu + gb[1] * wv
-        FFt = wu.outer_product(wu) + wv.outer_product(wv)
-        H = A * (ga.dot(Sp @ gb) * I3 + lam * Fa.outer_product(Fb) + mu * ga.dot(gb) * FFt
-                 + mu * Fb.outer_product(Fa))
-    else:
-        ks, kh = p0, p1
-        lu, lv, s = wu.norm(), wv.norm(), wu.dot(wv)
-        nu_, nv_ = wu / lu, wv / lv
-        cu, cv = 1.0 - 1.0 / lu, 1.0 - 1.0 / lv
-        if ti.static(psd):
-            cu, cv = ti.max(cu, 0.0), ti.max(cv, 0.0)
-        Pu, Pv = nu_.outer_product(nu_), nv_.outer_product(nv_)
-        Ku = Pu + cu * (I3 - Pu)
-        Kv = Pv + cv * (I3 - Pv)
-        qa = ga[0] * wv + ga[1] * wu
-        qb = gb[0] * wv + gb[1] * wu
-        H = ks * (ga[0] * gb[0] * Ku + ga[1] * gb[1] * Kv) + kh * qa.outer_product(qb)
-        if ti.static(not psd):
-            H += kh * s * (ga[0] * gb[1] + ga[1] * gb[0]) * I3
-        H = A * H
-    return H
-
-
-@ti.func
-def _triangle(x: ti.template(), tris: ti.template(), Dinv: ti.template(), area: ti.template(),
-              p0: ti.template(), p1: ti.template(), model: ti.template(), t):
-    """(w_u, w_v, [g_a], W, S, P_u, P_v) of triangle t: :func:`triangle_frame` and :func:`membrane_terms`."""
-    wu, wv, g0, g1, g2 = triangle_frame(x, tris, Dinv, t)
-    W, S, Pu, Pv = membrane_terms(model, wu, wv, area[t], p0[t], p1[t])
-    return wu, wv, [g0, g1, g2], W, S, Pu, Pv
-
-
-@ti.func
-def membrane_block(blocks: ti.template(), t, a: ti.template(), b: ti.template()) -> ti.math.mat3:
-    """Block (a, b) of triangle t in the layout of :meth:`MembraneEnergy.hessian_blocks`."""
-    return blocks[t, 3 * a + b]
-
-
-# --------------------------------------------------------------------------------------------
-# Kernels (per triangle, then per vertex: no atomics)
-# --------------------------------------------------------------------------------------------
-
-@ti.kernel
-def membrane_energy_kernel(x: vec3_array, tris: triangle_array, Dinv: ti.types.ndarray(dtype=mat2, ndim=1),
-                           area: scalar_array, p0: scalar_array, p1: scalar_array, model: ti.template()) -> float:
-    total = 0.0
-    for t in range(tris.shape[0]):
-        wu, wv, g, W, S, Pu, Pv = _triangle(x, tris, Dinv, area, p0, p1, model, t)
-        total += W
-    return total
-
-
-@ti.kernel
-def membrane_energies_kernel(x: vec3_array, tris: triangle_array, Dinv: ti.types.ndarray(dtype=mat2, ndim=1),
-                             area: scalar_array, p0: scalar_array, p1: scalar_array, model: ti.template(),
-                             out: scalar_array):
-    for t in range(tris.shape[0]):
-        wu, wv, g, W, S, Pu, Pv = _triangle(x, tris, Dinv, area, p0, p1, model, t)
-        out[t] = W
-
-
-@ti.kernel
-def membrane_forces_kernel(x: vec3_array, tris: triangle_array, Dinv: ti.types.ndarray(dtype=mat2, ndim=1),
-                           area: scalar_array, p0: scalar_array, p1: scalar_array, ft: vec3_array2,
-                           model: ti.template()):
-    # ft[t, a] = -dW_t/dx_a = -(g_a0 P_u + g_a1 P_v)  (the template last: a BoundKernel launches it)
-    for t in range(tris.shape[0]):
-        wu, wv, g0, g1, g2 = triangle_frame(x, tris, Dinv, t)
-        W, S, Pu, Pv = membrane_terms(model, wu, wv, area[t], p0[t], p1[t])
-        ft[t, 0] = -(g0[0] * Pu + g0[1] * Pv)
-        ft[t, 1] = -(g1[0] * Pu + g1[1] * Pv)
-        ft[t, 2] = -(g2[0] * Pu + g2[1] * Pv)
-
-
-@ti.kernel
-def membrane_hessian_kernel(x: vec3_array, tris: triangle_array, Dinv: ti.types.ndarray(dtype=mat2, ndim=1),
-                            area: scalar_array, p0: scalar_array, p1: scalar_array, model: ti.template(),
-                            psd: ti.template(), diagonal: ti.template(), out: mat3_array2):
-    # diagonal=False: out[t, 3a + b] = H_ab;  diagonal=True: out[t, a] = H_aa
-    for t in range(tris.shape[0]):
-        wu, wv, g, W, S, Pu, Pv = _triangle(x, tris, Dinv, area, p0, p1, model, t)
-        for a in ti.static(range(3)):
-            for b in ti.static(range(3)):
-                if ti.static(not diagonal):
-                    out[t, 3 * a + b] = block_ab(model, psd, wu, wv, g[a], g[b], S, area[t], p0[t], p1[t])
-                elif ti.static(a == b):
-                    out[t, a] = block_ab(model, psd, wu, wv, g[a], g[a], S, area[t], p0[t], p1[t])
-
-
-@ti.kernel
-def membrane_products_kernel(x: vec3_array, tris: triangle_array, Dinv: ti.types.ndarray(dtype=mat2, ndim=1),
-                             area: scalar_array, p0: scalar_array, p1: scalar_array, model: ti.template(),
-                             psd: ti.template(), dx: vec3_array, yt: vec3_array2):
-    # pass 1 of out += H dx: yt[t, a] = sum_b H_ab dx[corner b]
-    for t in range(tris.shape[0]):
-        wu, wv, g, W, S, Pu, Pv = _triangle(x, tris, Dinv, area, p0, p1, model, t)
-        for a in ti.static(range(3)):
-            y = ti.math.vec3(0.0)
-            for b in ti.static(range(3)):
-                y += block_ab(model, psd, wu, wv, g[a], g[b], S, area[t], p0[t], p1[t]) @ dx[tris[t, b]]
-            yt[t, a] = y
-
-
-@ti.kernel
-def block_products_kernel(blocks: mat3_array2, tris: triangle_array, dx: vec3_array, yt: vec3_array2):
-    for t in range(tris.shape[0]):
-        for a in ti.static(range(3)):
-            y = ti.math.vec3(0.0)
-            for b in ti.static(range(3)):
-                y += blocks[t, 3 * a + b] @ dx[tris[t, b]]
-            yt[t, a] = y
-
-
-@ti.kernel
-def gather_corners_kernel(vt: vec3_array2, offsets: int_array, entries: int_array, out: vec3_array):
-    for v in range(offsets.shape[0] - 1):
-        out[v] += slot_gather(vt, offsets, entries, v, 3)
-
-
-@ti.func
-def condition_gradients(wu, wv, g, A):
-    """dC/dx_a of Baraff-Witkin's three conditions for the corners a = 0, 1, 2: (stretch u,
-    stretch v, shear) lists of vec3, (M2)."""
-    r = ti.sqrt(A)
-    nu_, nv_ = wu / wu.norm(), wv / wv.norm()
-    gu = [r * g[a][0] * nu_ for a in ti.static(range(3))]
-    gv = [r * g[a][1] * nv_ for a in ti.static(range(3))]
-    gs = [r * (g[a][0] * wv + g[a][1] * wu) for a in ti.static(range(3))]
-    return gu, gv, gs
-
-
-@ti.kernel
-def damping_products_kernel(x: vec3_array, tris: triangle_array, Dinv: ti.types.ndarray(dtype=mat2, ndim=1),
-                            area: scalar_array, kd_s: scalar_array, kd_h: scalar_array, w: vec3_array,
-                            yt: vec3_array2):
-    # pass 1 of out += D(x) w (M3): yt[t, a] = sum_c kd_c dC_c/dx_a (sum_b dC_c/dx_b . w_b)
-    for t in range(tris.shape[0]):
-        wu, wv, g0, g1, g2 = triangle_frame(x, tris, Dinv, t)
-        gu, gv, gs = condition_gradients(wu, wv, [g0, g1, g2], area[t])
-        ru, rv, rs = 0.0, 0.0, 0.0
-        for b in ti.static(range(3)):
-            wb = w[tris[t, b]]
-            ru += gu[b].dot(wb)
-            rv += gv[b].dot(wb)
-            rs += gs[b].dot(wb)
-        for a in ti.static(range(3)):
-            yt[t, a] = kd_s[t] * (ru * gu[a] + rv * gv[a]) + kd_h[t] * rs * gs[a]
-
-
-@ti.kernel
-def damping_blocks_kernel(x: vec3_array, tris: triangle_array, Dinv: ti.types.ndarray(dtype=mat2, ndim=1),
-                          area: scalar_array, kd_s: scalar_array, kd_h: scalar_array, out: mat3_array2):
-    # out[t, 3a + b] = D_ab = sum_c kd_c dC_c/dx_a (dC_c/dx_b)^T
-    for t in range(tris.shape[0]):
-        wu, wv, g0, g1, g2 = triangle_frame(x, tris, Dinv, t)
-        gu, gv, gs = condition_gradients(wu, wv, [g0, g1, g2], area[t])
-        for a in ti.static(range(3)):
-            for b in ti.static(range(3)):
-                out[t, 3 * a + b] = (kd_s[t] * (gu[a].outer_product(gu[b]) + gv[a].outer_product(gv[b]))
-                                     + kd_h[t] * gs[a].outer_product(gs[b]))
-
-
-@ti.kernel
-def _negate_corners(yt: vec3_array2):
-    for t, a in yt:
-        yt[t, a] = -yt[t, a]
 
 
 # --------------------------------------------------------------------------------------------
@@ -362,7 +70,7 @@ def rest_frames(X: np.ndarray, tris: np.ndarray, direction=(1.0, 0.0, 0.0)) -> t
 
 
 class MembraneEnergy(Energy):
-    """A membrane energy over triangles, (M1) "stvk" or (M2) "baraff-witkin" (module docstring).
+    """A membrane energy over triangles, (M1) "stvk" or (M2) "baraff-witkin" (engine/energies/triangle.py).
 
     Parameters
       rest_positions  (n, 3) rest positions [m] ((n, 2) is embedded at z = 0)
@@ -451,16 +159,7 @@ class MembraneEnergy(Energy):
         return cls(mesh.vertices, mesh.triangles, model, **kwargs)
 
     def _vec3(self, a, slot: str):
-        if isinstance(a, np.ndarray):
-            a = np.asarray(a, dtype=np.float64).reshape(-1, 3)
-            if len(a) != self.n_vertices:
-                raise MembraneError(f"{slot} has {len(a)} vertices, the membrane has {self.n_vertices}")
-            buf = self._scratch.get(slot)
-            if buf is None:
-                buf = self._scratch[slot] = vec3_ndarray(self.n_vertices)
-            buf.from_numpy(a.astype(float_dtype()))
-            return buf
-        return a
+        return vec3_argument(a, self.n_vertices, self._scratch, slot, MembraneError, "the membrane")
 
     def corner_force_launch(self) -> tuple:
         """(kernel, tail, templates): ``kernel(x, *tail, *templates)`` writes every triangle's corner
@@ -559,7 +258,7 @@ class MembraneEnergy(Energy):
     def add_damping_forces(self, x, v, f) -> None:
         """f += d = -D(x) v (M3)."""
         damping_products_kernel(self._vec3(x, "x"), *self._damping_args(), self._vec3(v, "v"), self.per_corner)
-        _negate_corners(self.per_corner)
+        negate_corners(self.per_corner)
         self._gather_into(f)
 
     def damping_blocks(self, x):

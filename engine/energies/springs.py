@@ -37,8 +37,8 @@ incidence, the other endpoint, the edge id and copies of 1/L_e and c_e/L_e so th
 gather streams through memory.
 
 (S1) and (S2) of one spring are written once, as the ti.funcs :func:`spring_energy` and
-:func:`spring_force`; the kernels here, the fused steps (engine.integrators.kernels) and the
-benchmark's variants (bench/variants.py) call them.
+:func:`spring_force`; the kernels here, the fused steps (engine.integrators.cloth_kernels and
+engine.integrators.batched_steps) and the benchmark's variants (bench/variants.py) call them.
 """
 
 import numpy as np

@@ -22,7 +22,10 @@ import numpy as np
 
 from engine.constants import EXPLICIT
 from engine.fields import WorkArrays, int_ndarray, scalar_ndarray, vec3_ndarray, zero_vec3
+from engine.integrators import batched_steps as B
+from engine.integrators import cloth_kernels as C
 from engine.integrators import kernels as K
+from engine.integrators.launch import BoundKernel
 from engine.integrators.monitor import Monitor
 from engine.model import Model, State
 
@@ -61,7 +64,7 @@ CLOTH_BLOCK_MIN = 256  # vertices per block at least: below it a second thread c
 
 
 def cloth_plan(model: Model, n_blocks: int):
-    """The arrays of :func:`engine.integrators.kernels.cloth_step` for a springs [+ one hinge energy]
+    """The arrays of :func:`engine.integrators.cloth_kernels.cloth_step` for a springs [+ one hinge energy]
     model split into ``n_blocks`` contiguous vertex blocks: (I, F, boundary count), or None when the
     springs' incidence is not ordered by neighbour index (then no block order reproduces the
     generic path's sums; the generic path is taken).
@@ -123,11 +126,11 @@ def cloth_plan(model: Model, n_blocks: int):
     sections = [vb, np.concatenate([[0], np.cumsum(in_count[in_v])]), other[inc], csr(up), other[up],
                 bnd.astype(np.int64), bnd_list, None, h_off, hv, np.searchsorted(bnd_list, vb), in_v,
                 np.searchsorted(in_v, vb)]
-    header = np.zeros(K.HEADER, dtype=np.int64)
-    header[K.H_NB], header[K.H_N] = nb, n
-    parts, pos = [header], K.HEADER
-    slots = (K.H_VB, K.H_IN_OFF, K.H_IN_J, K.H_UP_OFF, K.H_UP_C, K.H_BFLAG, K.H_BND, K.H_NBND, K.H_HOFF, K.H_HV,
-             K.H_BOFF, K.H_IN_V, K.H_IN_VOFF)
+    header = np.zeros(C.HEADER, dtype=np.int64)
+    header[C.H_NB], header[C.H_N] = nb, n
+    parts, pos = [header], C.HEADER
+    slots = (C.H_VB, C.H_IN_OFF, C.H_IN_J, C.H_UP_OFF, C.H_UP_C, C.H_BFLAG, C.H_BND, C.H_NBND, C.H_HOFF, C.H_HV,
+             C.H_BOFF, C.H_IN_V, C.H_IN_VOFF)
     for slot, arr in zip(slots, sections):
         if arr is None:
             header[slot] = int(bnd.sum())
@@ -139,22 +142,45 @@ def cloth_plan(model: Model, n_blocks: int):
     fparts = [inv_mass, np.stack([cl[eid[inc]], il[eid[inc]]], 1).reshape(-1),
               np.stack([cl[eid[up]], il[eid[up]]], 1).reshape(-1), hf, np.asarray(model.gravity, dtype=np.float64)]
     fpos = np.cumsum([0] + [len(a) for a in fparts])
-    header[K.H_F_IN], header[K.H_F_UP], header[K.H_F_H], header[K.H_F_G] = fpos[1], fpos[2], fpos[3], fpos[4]
-    header[K.H_MODE] = int(bending.mode) if bending is not None else 0
+    header[C.H_F_IN], header[C.H_F_UP], header[C.H_F_H], header[C.H_F_G] = fpos[1], fpos[2], fpos[3], fpos[4]
+    header[C.H_MODE] = int(bending.mode) if bending is not None else 0
     I = np.concatenate(parts)
     if I.max(initial=0) >= 2 ** 31 or fpos[-1] >= 2 ** 31:
         return None
     return int_ndarray(I), scalar_ndarray(np.concatenate(fparts)), int(bnd.sum())
 
 
-def cloth_stepper(model: Model, n_blocks: int | None = None, work: dict | None = None):
-    """``step(state, dt, method="symplectic-euler", n_steps=1)``: ``n_steps`` steps of ``method``, one
-    launch of :func:`engine.integrators.kernels.cloth_step` each, or all in one launch of
-    :func:`engine.integrators.kernels.cloth_steps` when every block has a thread; None when the
+class FastStep:
+    """A fast step planned for one model and one method: :meth:`begin` once before the steps (velocity
+    Verlet's acceleration for the current state), then :meth:`step` (``n_steps`` steps of dt; ``state.t``
+    is the caller's to advance). Made by :func:`cloth_stepper` or :func:`corner_stepper`, which choose the
+    kernels for the method when they plan, not at every call."""
+
+    def __init__(self, n: int, begin, steps):
+        self.n, self._begin, self._steps = n, begin, steps
+
+    def _check(self, state) -> None:
+        if state.x.shape[0] != self.n:
+            raise ValueError(f"state has {state.x.shape[0]} vertices, model has {self.n}")
+
+    def begin(self, state) -> None:
+        self._check(state)
+        if self._begin is not None:
+            self._begin(state)
+
+    def step(self, state, dt: float, n_steps: int = 1) -> None:
+        self._check(state)
+        self._steps(state, float(dt), int(n_steps))
+
+
+def cloth_stepper(model: Model, method: str = "symplectic-euler", n_blocks: int | None = None,
+                  work: dict | None = None) -> FastStep | None:
+    """The :class:`FastStep` of ``method`` ("symplectic-euler" or "velocity-verlet": kick-drift, then
+    force-kick, the acceleration carried in the work array) for springs [+ one hinge energy]: one
+    launch of :func:`engine.integrators.cloth_kernels.cloth_step` per step, or all steps in one launch
+    of :func:`engine.integrators.cloth_kernels.cloth_steps` when every block has a thread; None when the
     model's energies are not springs [+ one hinge energy] in that order (or their incidence has no
-    block order: :func:`cloth_plan`). Methods: "symplectic-euler", "velocity-verlet" (kick-drift,
-    then force-kick; the acceleration is carried in the work array) and "velocity-verlet-begin"
-    (that acceleration for the current state, dt = 0). ``state.t`` is the caller's to advance.
+    block order: :func:`cloth_plan`).
 
     ``n_blocks``: vertex blocks (default :func:`cloth_blocks`, one per thread); ``work``: the dict
     that keeps the kernel's work arrays (a Stepper's, so that the Verlet acceleration in them
@@ -175,49 +201,45 @@ def cloth_stepper(model: Model, n_blocks: int | None = None, work: dict | None =
         w = d["cloth_w"] = vec3_ndarray(4 * n)  # spring sums, hinge sums, boundary x, Verlet acceleration
     sync = d.get("cloth_sync")
     if sync is None:
-        sync = d["cloth_sync"] = int_ndarray(np.zeros(K.SYNC_SIZE))
+        sync = d["cloth_sync"] = int_ndarray(np.zeros(C.SYNC_SIZE))
     with_h = sig == ("springs", "hinges")
-    launch = {what: K.BoundKernel(K.cloth_step, (w, I, F), (what, with_h, n_boundary > 0))
-              for what in (K.CLOTH_SE, K.CLOTH_VV, K.CLOTH_VV_BEGIN)}
-    codes = CLOTH_METHODS
+    what = CLOTH_METHODS[method]
+    launch = BoundKernel(C.cloth_step, (w, I, F), (what, with_h, n_boundary > 0))
+    begin = None
+    if method == "velocity-verlet":   # the acceleration for the current state (dt = 0)
+        first = BoundKernel(C.cloth_step, (w, I, F), (C.CLOTH_VV_BEGIN, with_h, n_boundary > 0))
+        begin = lambda state: first(state.x, state.v, 0.0)   # noqa: E731
     # many steps per launch with a thread per block and a core per thread (cloth_steps' threads
     # spin while they wait for each other: on a shared core that would cost a time slice)
-    nb = int(I.to_numpy()[K.H_NB])
-    multi = {what: K.BoundKernel(K.cloth_steps, (w, I, F, sync, K.SPIN_LIMIT), (what, with_h))
-             for what in (K.CLOTH_SE, K.CLOTH_VV)} if nb <= _threads() <= _cores() else {}
+    nb = int(I.to_numpy()[C.H_NB])
+    multi = BoundKernel(C.cloth_steps, (w, I, F, sync, C.SPIN_LIMIT), (what, with_h)) \
+        if nb <= _threads() <= _cores() else None
 
-    def step(state, dt, method="symplectic-euler", n_steps=1):
-        if state.x.shape[0] != n:
-            raise ValueError(f"state has {state.x.shape[0]} vertices, model has {n}")
-        what = codes[method]
-        dt = float(dt)
-        left = int(n_steps)
-        if left > 1 and what in multi:
+    def steps(state, dt, left):
+        if left > 1 and multi is not None:
             while left > 0:
                 k = min(left, MULTI_STEP_CHUNK)
-                if multi[what](state.x, state.v, dt, k):
+                if multi(state.x, state.v, dt, k):
                     zero_vec3(w)  # the sums a block left in it (a launch starts from zero sums)
-                    raise RuntimeError(f"the many-steps cloth kernel gave up: a thread waited more than {K.SPIN_LIMIT} "
+                    raise RuntimeError(f"the many-steps cloth kernel gave up: a thread waited more than {C.SPIN_LIMIT} "
                                        f"polls for the tasks before its own (the state is part-way through a step); "
                                        f"is every CPU thread of the runtime really running? ELASTIC_THREADS=1 avoids it")
                 left -= k
             return
         for _ in range(left):
-            launch[what](state.x, state.v, dt)
-    return step
+            launch(state.x, state.v, dt)
+    return FastStep(n, begin, steps)
 
 
-CLOTH_METHODS = {"symplectic-euler": K.CLOTH_SE, "velocity-verlet": K.CLOTH_VV, "velocity-verlet-begin": K.CLOTH_VV_BEGIN}
+CLOTH_METHODS = {"symplectic-euler": C.CLOTH_SE, "velocity-verlet": C.CLOTH_VV}   # the methods the fast steps know
 
 
-def corner_stepper(model: Model, work: dict | None = None):
-    """``step(state, dt, method="symplectic-euler", n_steps=1)`` for a model whose one energy has the
-    "corner-gather" force form (a membrane), with the interface of :func:`cloth_stepper`; None for
-    any other model. Each step launches the energy's per-element force kernel and
+def corner_stepper(model: Model, method: str = "symplectic-euler", work: dict | None = None) -> FastStep | None:
+    """The :class:`FastStep` of ``method`` for a model whose one energy has the "corner-gather" force
+    form (a membrane); None for any other model. Each step launches the energy's per-element force kernel and
     :func:`engine.integrators.kernels.corner_update_kernel` (gather + update), both bound
-    (:class:`engine.integrators.kernels.BoundKernel`): symplectic Euler = forces, gather + update;
-    velocity Verlet = kick-drift, forces, gather + kick; "velocity-verlet-begin" = forces, gather +
-    acceleration. The generic path launches the same force kernel, then a zeroing, a gather and an
+    (:class:`engine.integrators.launch.BoundKernel`): symplectic Euler = forces, gather + update;
+    velocity Verlet = kick-drift, forces, gather + kick, after forces, gather + acceleration at begin. The generic path launches the same force kernel, then a zeroing, a gather and an
     update through Taichi's own call; the states are bitwise the same (tested). ``work``: the dict
     that keeps the Verlet acceleration (a Stepper's)."""
     if signature(model) != ("corners",):
@@ -229,36 +251,39 @@ def corner_stepper(model: Model, work: dict | None = None):
     if a is None or a.shape[0] != n:
         a = d["corner_a"] = vec3_ndarray(n)
     kernel, tail, templates = e.corner_force_launch()
-    forces = K.BoundKernel(kernel, tail, templates)
+    forces = BoundKernel(kernel, tail, templates)
     offsets, entries = e.slot_incidence
     g = [float(c) for c in np.asarray(model.gravity, dtype=np.float64).reshape(3)]
     tail = (a, e.per_corner, offsets, entries, model.inv_mass_nd, *g)
 
     def update(method, phase):
-        return K.BoundKernel(K.corner_update_kernel, tail, (e.stencil_size, method, phase))
+        return BoundKernel(K.corner_update_kernel, tail, (e.stencil_size, method, phase))
     se = update(K.SYMPLECTIC_EULER, K.STEP)
     kick_drift = update(K.VELOCITY_VERLET, K.KICK_DRIFT)
     accel_kick = update(K.VELOCITY_VERLET, K.ACCEL_KICK)
 
-    def step(state, dt, method="symplectic-euler", n_steps=1):
-        if state.x.shape[0] != n:
-            raise ValueError(f"state has {state.x.shape[0]} vertices, model has {n}")
-        if method not in CLOTH_METHODS:
-            raise ValueError(f"method must be one of {', '.join(CLOTH_METHODS)} (got {method!r})")
-        dt = float(dt)
+    if method not in CLOTH_METHODS:
+        raise ValueError(f"method must be one of {', '.join(CLOTH_METHODS)} (got {method!r})")
+
+    def symplectic_euler(state, dt, n_steps):
         x, v = state.x, state.v
-        for _ in range(int(n_steps)):
-            if method == "symplectic-euler":
-                forces(x)
-                se(x, v, dt)
-            elif method == "velocity-verlet":
-                kick_drift(x, v, dt)
-                forces(x)
-                accel_kick(x, v, 0.5 * dt)
-            else:
-                forces(x)
-                accel_kick(x, v, 0.0)
-    return step
+        for _ in range(n_steps):
+            forces(x)
+            se(x, v, dt)
+
+    def velocity_verlet(state, dt, n_steps):
+        x, v = state.x, state.v
+        for _ in range(n_steps):
+            kick_drift(x, v, dt)
+            forces(x)
+            accel_kick(x, v, 0.5 * dt)
+
+    def acceleration(state):
+        forces(state.x)
+        accel_kick(state.x, state.v, 0.0)
+    if method == "symplectic-euler":
+        return FastStep(n, None, symplectic_euler)
+    return FastStep(n, acceleration, velocity_verlet)
 
 
 MULTI_STEP_CHUNK = 1 << 20  # steps per cloth_steps launch at most (its barrier counter stays far below 2^31)
@@ -281,10 +306,10 @@ def _cores() -> int:
 def many_steps(model: Model, state: State, dt: float, n_steps: int, method: str, monitor: Monitor, work,
                step_offset: int = 0):
     """``n_steps`` steps of ``method`` of a spring-only model in one launch of
-    :func:`engine.integrators.kernels.many_steps`, with ``work``'s arrays (an
+    :func:`engine.integrators.batched_steps.many_steps`, with ``work``'s arrays (an
     :class:`engine.fields.WorkArrays`); returns (kinetic, potential) after every step (J), and
     raises the monitor's BlowUpError at the first step whose energy is not finite or above its
-    bound (see :func:`run_many_steps`)."""
+    bound (:meth:`engine.integrators.stepper.Stepper.energies` on the many-steps path)."""
     springs = model.energies[0]
     dt = float(dt)
     if not (math.isfinite(dt) and dt > 0):
@@ -296,29 +321,11 @@ def many_steps(model: Model, state: State, dt: float, n_steps: int, method: str,
         raise ValueError(f"state has {state.n} vertices, model has {model.n}")
     if n_steps == 0:
         return np.zeros(0), np.zeros(0)
-    kin, pot = K.energy_buffers(n_steps)
-    done = K.many_steps(state.x, state.v, work.vec3("f"), work.vec3("a"),
+    kin, pot = B.energy_buffers(n_steps)
+    done = B.many_steps(state.x, state.v, work.vec3("f"), work.vec3("a"),
                         *springs.force_args(), springs.edges, springs.L, springs.c, springs.m, model.mass_nd,
                         model.inv_mass_nd, model.gravity_vec, dt, n_steps, kin, pot, monitor.bound, K.METHODS[method])
-    return K.collect(kin, pot, done, n_steps, state, dt, monitor, step_offset)
-
-
-def run_many_steps(model: Model, state: State, dt: float, n_steps: int, method: str = "symplectic-euler",
-                   energy_bound: float | None = None, step_offset: int = 0):
-    """Advance ``state`` by ``n_steps`` steps of ``method`` (forward-euler, symplectic-euler,
-    velocity-verlet) of a spring-only model in one kernel launch; returns (kinetic, potential)
-    numpy arrays (J), one entry per step (the energies after that step).
-
-    If the total energy after a step is not finite or exceeds ``energy_bound`` (J), the run stops
-    there and the monitor's BlowUpError is raised with ``step`` = ``step_offset`` + the index of
-    that step and the energies up to and including it in ``.kinetic``/``.potential``."""
-    if method not in EXPLICIT:
-        raise ValueError(f"unknown method {method!r}; valid: {', '.join(EXPLICIT)}")
-    if signature(model) != ("springs",):
-        raise ValueError(f"run_many_steps needs a spring-only model (exactly one spring energy, plus gravity and "
-                         f"pins); this model has energies {[e.name for e in model.energies]}")
-    monitor = Monitor(method, dt, energy_bound, model=model)
-    return many_steps(model, state, dt, n_steps, method, monitor, WorkArrays(model.n), step_offset)
+    return B.collect(kin, pot, done, n_steps, state, dt, monitor, step_offset)
 
 
 # --------------------------------------------------------------------------------------------
@@ -327,31 +334,31 @@ def run_many_steps(model: Model, state: State, dt: float, n_steps: int, method: 
 
 class ExplicitIntegrator:
     """Base: the update formula of one explicit method, with no state of its own. A
-    :class:`engine.integrators.stepper.Stepper` drives it: ``begin(stepper, state)`` once, then
-    ``advance(stepper, state, dt)`` per step, with the stepper's model, work arrays and plan
-    (``stepper.fast``: the one-launch cloth step or the two-pass membrane step, or None for the
-    generic path). Energies and blow-ups
-    are watched by the run loop (engine.integrators.loop)."""
+    :class:`engine.integrators.stepper.Stepper` drives it on its generic path (the fast paths are the
+    stepper's own :class:`FastStep`): ``begin(ctx, state)`` once, then ``advance(ctx, state, dt)`` per
+    step, handed a :class:`engine.integrators.stepper.StepContext` (the model, the stepper's work
+    arrays, whether the model has dampers) and never reaching back. Energies and blow-ups are
+    watched by the run loop (engine.integrators.loop)."""
 
     name = "explicit"
     implicit = False
-    fused = False  # whether a Stepper may plan the one-launch cloth step for it
+    fused = False  # whether a Stepper may plan a fast step (FastStep) for it
 
-    def begin(self, stepper, state: State) -> None:
+    def begin(self, ctx, state: State) -> None:
         """Prepare what depends on the current state (nothing for one-stage methods)."""
 
-    def advance(self, stepper, state: State, dt: float) -> None:
+    def advance(self, ctx, state: State, dt: float) -> None:
         raise NotImplementedError
 
     @staticmethod
-    def _elastic_forces(stepper, state: State):
+    def _elastic_forces(ctx, state: State):
         """The elastic forces at the state's x, plus the dampers' -D(x) v at its v (velocity Verlet's
         second half kick takes them at the half-kicked velocity)."""
-        f = stepper.work.vec3("f")
+        f = ctx.work.vec3("f")
         zero_vec3(f)
-        stepper.model.add_elastic_forces(state.x, f)
-        if stepper.dampers:
-            stepper.model.add_damping_forces(state.x, state.v, f)
+        ctx.model.add_elastic_forces(state.x, f)
+        if ctx.dampers:
+            ctx.model.add_damping_forces(state.x, state.v, f)
         return f
 
     def __repr__(self) -> str:
@@ -361,63 +368,52 @@ class ExplicitIntegrator:
 class ForwardEuler(ExplicitIntegrator):
     name = "forward-euler"
 
-    def advance(self, stepper, state, dt):
-        model = stepper.model
-        f = self._elastic_forces(stepper, state)
+    def advance(self, ctx, state, dt):
+        model = ctx.model
+        f = self._elastic_forces(ctx, state)
         K.update_kernel(state.x, state.v, f, f, model.inv_mass_nd, model.gravity_vec, dt, K.FORWARD_EULER, K.STEP)
         state.t += dt
 
 
-class _FusedIntegrator(ExplicitIntegrator):
-    """A method the fast steps know. ``fused`` (default): a stepper may plan one, the one-launch
-    cloth step for springs [+ one hinge energy] models or the two-pass step for a membrane (bitwise
-    the same result); otherwise, and for other models, :meth:`_generic_advance` takes the step."""
+class SymplecticEuler(ExplicitIntegrator):
+    """``fused`` (default): a stepper may plan the fast step for it (the one-launch cloth step for
+    springs [+ one hinge energy], the two-pass step for a membrane: bitwise the same result)."""
+
+    name = "symplectic-euler"
 
     def __init__(self, fused: bool = True):
         self.fused = bool(fused)
 
-    def advance(self, stepper, state, dt):
-        if stepper.fast is not None:
-            stepper.fast(state, dt, self.name)
-        else:
-            self._generic_advance(stepper, state, dt)
-        state.t += dt
-
-    def _generic_advance(self, stepper, state, dt) -> None:
-        raise NotImplementedError
-
-
-class SymplecticEuler(_FusedIntegrator):
-    name = "symplectic-euler"
-
-    def _generic_advance(self, stepper, state, dt):
-        model = stepper.model
-        f = self._elastic_forces(stepper, state)
+    def advance(self, ctx, state, dt):
+        model = ctx.model
+        f = self._elastic_forces(ctx, state)
         K.update_kernel(state.x, state.v, f, f, model.inv_mass_nd, model.gravity_vec, dt, K.SYMPLECTIC_EULER,
                         K.STEP)
+        state.t += dt
 
 
-class VelocityVerlet(_FusedIntegrator):
+class VelocityVerlet(ExplicitIntegrator):
     """Kick-drift-kick.  The acceleration a(x) is computed in :meth:`begin` (one extra force
     evaluation per run, not per step) and then carried from step to step in the stepper's work
-    arrays (or the cloth step's)."""
+    arrays (or the fast step's). ``fused``: as for :class:`SymplecticEuler`."""
 
     name = "velocity-verlet"
 
-    def begin(self, stepper, state):
-        if stepper.fast is not None:
-            stepper.fast(state, 0.0, "velocity-verlet-begin")
-            return
-        model = stepper.model
-        f = self._elastic_forces(stepper, state)
-        K.update_kernel(state.x, state.v, f, stepper.work.vec3("a"), model.inv_mass_nd, model.gravity_vec, 0.0,
+    def __init__(self, fused: bool = True):
+        self.fused = bool(fused)
+
+    def begin(self, ctx, state):
+        model = ctx.model
+        f = self._elastic_forces(ctx, state)
+        K.update_kernel(state.x, state.v, f, ctx.work.vec3("a"), model.inv_mass_nd, model.gravity_vec, 0.0,
                         K.VELOCITY_VERLET, K.ACCEL_KICK)
 
-    def _generic_advance(self, stepper, state, dt):
-        model = stepper.model
-        a = stepper.work.vec3("a")
+    def advance(self, ctx, state, dt):
+        model = ctx.model
+        a = ctx.work.vec3("a")
         K.update_kernel(state.x, state.v, a, a, model.inv_mass_nd, model.gravity_vec, dt, K.VELOCITY_VERLET,
                         K.KICK_DRIFT)
-        f = self._elastic_forces(stepper, state)
+        f = self._elastic_forces(ctx, state)
         K.update_kernel(state.x, state.v, f, a, model.inv_mass_nd, model.gravity_vec, 0.5 * dt, K.VELOCITY_VERLET,
                         K.ACCEL_KICK)
+        state.t += dt

@@ -13,7 +13,8 @@ the step).  (BE) is the stationarity condition of the *incremental potential*
 (grad Phi = 0  <=>  (BE) with v+ = (x - x_n)/dt), so a step minimises Phi.  At x = x_n,
 Phi = the kinetic energy 1/2 |v_n|_M^2.
 
-Newton on (IP) from x = x_n, with the PSD Hessian H (springs (S4), bending Gauss-Newton):
+Newton on (IP) from x = x_n (engine.newton.minimize, the loop the static solve uses too), with the PSD
+Hessian H (springs (S4), bending Gauss-Newton):
 
     A dx = -grad Phi(x),    A = (1/dt^2 + alpha/dt) M + H(x) + (beta/dt) H_n            (N1)
 
@@ -30,9 +31,9 @@ p.Ap <= 0 in CG, or not a descent direction) or needs a shortened step, the PSD 
 again (the exact one is retried every 5 iterations).  With ``line_search`` each Newton step
 is backtracked (halving) until  Phi(x + s dx) < Phi(x)  and Armijo's condition
 Phi(x + s dx) <= Phi(x) + 1e-4 s grad Phi . dx  hold, so Phi decreases strictly
-monotonically; the values are kept in ``last_objectives``.  If no step length down to 2^-30
+monotonically; the values are kept in the step's StepInfo.objectives.  If no step length down to 2^-30
 decreases Phi measurably (round-off level, next to the minimum) the iteration stops there
-(``last_info.line_search_failed``).
+(StepInfo.line_search_failed).
 
 Newton stops when |grad Phi(x)| <= newton_tol max(|grad Phi(x_n)|, |M g|) (the weight keeps a
 settled hanging body from chasing round-off).  Linear solves go through
@@ -51,13 +52,12 @@ from dataclasses import dataclass, field
 
 import taichi as ti
 
+from engine import newton
 from engine.errors import ParameterError
 from engine.solvers import SOLVERS, LinearSolver, SolverError, make_solver
-from engine.fields import axpy_into, copy_vec3, dot_vec3, scalar_array, sub_into, vec3_array, zero_vec3
+from engine.fields import copy_vec3, dot_vec3, scalar_array, sub_into, vec3_array, zero_vec3
 from engine.model import State
 
-ARMIJO_C1 = 1e-4
-MAX_BACKTRACKS = 30
 EXACT_RETRY = 5     # after a failure, retry the exact Hessian every EXACT_RETRY Newton iterations
 EXACT_BELOW = 1e-2  # try the exact Hessian once |grad Phi| < EXACT_BELOW |grad Phi(x_n)|
 
@@ -154,6 +154,8 @@ class StepInfo:
     step_sizes: list = field(default_factory=list)
     newton_converged: bool = False
     line_search_failed: bool = False
+    solves: int = 0                  # every linear solve of the step, refused exact-Hessian ones included,
+    all_linear_iterations: int = 0   # and their iterations
 
 
 class BackwardEuler:
@@ -171,9 +173,10 @@ class BackwardEuler:
       max_iter          CG iteration limit of each linear solve (pcg)
       exact_near_solution  with newton_iterations > 1, try the exact Hessian near the solution
 
-    ``advance(stepper, state, dt)`` is one step (a :class:`engine.integrators.stepper.Stepper` drives it).
-    After a step: ``last_info`` (:class:`StepInfo`), ``last_objectives`` (Phi values);
-    totals since :meth:`reset_stats`: ``total_steps``, ``total_solves``, ``total_linear_iterations``.
+    ``advance(ctx, state, dt) -> StepInfo`` is one step; a :class:`engine.integrators.stepper.Stepper`
+    drives it, handing it its StepContext (the model, its work arrays and its own linear solver, of
+    this integrator's kind and options) and keeping the StepInfo (``stepper.last_info``) and the
+    totals (``stepper.stats``). The integrator keeps nothing between steps.
     """
 
     name = "backward-euler"
@@ -207,30 +210,70 @@ class BackwardEuler:
         self.rayleigh_alpha = float(rayleigh_alpha)
         self.rayleigh_beta = float(rayleigh_beta)
         self.exact_near_solution = bool(exact_near_solution)
-        self.last_info = StepInfo()
-        self.reset_stats()
 
-    @property
-    def last_objectives(self) -> list:
-        """Phi at x_n and after each accepted Newton step of the last step (empty without line search)."""
-        return self.last_info.objectives
-
-    def reset_stats(self) -> None:
-        self.total_steps = 0
-        self.total_solves = 0
-        self.total_linear_iterations = 0
-
-    def begin(self, stepper, state: State) -> None:
+    def begin(self, ctx, state: State) -> None:
         """Nothing to prepare (kept for the integrator protocol)."""
 
     # -- one step ------------------------------------------------------------------------------
-    def _objective(self, model, x, xn, v, dt, W_n, work) -> float:
+    def advance(self, ctx, state: State, dt: float) -> StepInfo:
+        """One step of ``ctx.model`` with ``ctx.work``'s arrays and ``ctx.solver``; returns what it did.
+        Newton on (IP) is engine.newton's minimiser (the same loop as the static solve)."""
+        dt = float(dt)
+        if not (math.isfinite(dt) and dt > 0.0):
+            raise ParameterError(f"dt must be finite and > 0 (got {dt!r})")
+        model = ctx.model
+        if model.dampers and self.rayleigh_beta > 0.0:
+            raise ParameterError("rayleigh_beta and a membrane's Baraff-Witkin damping cannot be combined in one "
+                                 "backward-Euler step; use one of them")
+        work = {k: ctx.work.vec3("be_" + k) for k in ("xn", "f", "rhs", "dx", "trial", "d", "hq")}
+        x = state.x
+        copy_vec3(x, work["xn"])
+        problem = _StepProblem(self, ctx, state, dt, work)
+        n = self.newton_iterations
+        opts = newton.Options(max_iter=n, exact=self.exact_near_solution and n > 1, exact_retry=EXACT_RETRY,
+                              line_search=self.line_search, strict_decrease=True, final_residual=n > 1)
+        res = newton.minimize(problem, x, work["trial"], work["dx"], opts)
+        info = StepInfo(newton_iterations=len(res.linear), gradient_norms=problem.gradient_norms,
+                        objectives=res.objectives, step_sizes=res.step_sizes,
+                        newton_converged=res.status == "converged",
+                        line_search_failed=res.status == "line_search_failed", solves=res.solves,
+                        all_linear_iterations=res.linear_iterations)
+        info.linear_iterations = [lin.iterations for lin in res.linear]
+        info.linear_residuals = [lin.residual for lin in res.linear]
+        if res.status == "linear":
+            copy_vec3(work["xn"], x)  # leave the state as it was
+            raise SolverError(f"backward-euler step at t={state.t:.6g} s, Newton iteration {len(res.linear)}: "
+                              f"{res.linear[-1].describe()}; raise max_iter or tol, or use solver='cholesky'")
+        _be_finish(x, work["xn"], state.v, model.inv_mass_nd, 1.0 / dt)
+        state.t += dt
+        return info
+
+    def __repr__(self) -> str:
+        return (f"<integrator backward-euler solver={self.solver.name} tol={self.tol:g} "
+                f"newton_iterations={self.newton_iterations} line_search={self.line_search}>")
+
+
+class _StepProblem(newton.Problem):
+    """(IP) of one step for engine.newton: Phi, -grad Phi (in ``rhs``) and |grad Phi|, and the
+    direction of (N1) from the integrator's solver with the stepper's set-up."""
+
+    def __init__(self, be: BackwardEuler, ctx, state: State, dt: float, work: dict):
+        self.be, self.solver, self.model, self.dt, self.work = be, ctx.solver, ctx.model, dt, work
+        self.xn, self.v, self.rhs = work["xn"], state.v, work["rhs"]
+        self.inv_dt2, self.a_dt = 1.0 / (dt * dt), be.rayleigh_alpha / dt
+        self.mass_coef, self.hess_coef = newton_coefficients(dt, be.rayleigh_alpha, be.rayleigh_beta)
+        self.W_n = self.model.elastic_energy(self.xn) if be.line_search else 0.0
+        self.g0 = None
+        self.gradient_norms = []
+
+    def objective(self, x) -> float:
         """Phi(x) of (IP)."""
-        phi = _be_inertia(x, xn, v, model.mass_nd, model.inv_mass_nd, model.gravity_vec, 1.0 / (dt * dt),
-                          self.rayleigh_alpha / dt, dt)
-        phi += model.elastic_energy(x) - W_n
-        if self.rayleigh_beta > 0.0 or model.dampers:
-            d, hq = work["d"], work["hq"]
+        be, model, xn, dt = self.be, self.model, self.xn, self.dt
+        phi = _be_inertia(x, xn, self.v, model.mass_nd, model.inv_mass_nd, model.gravity_vec, self.inv_dt2,
+                          self.a_dt, dt)
+        phi += model.elastic_energy(x) - self.W_n
+        if be.rayleigh_beta > 0.0 or model.dampers:
+            d, hq = self.work["d"], self.work["hq"]
             sub_into(x, xn, d)
             zero_vec3(hq)
             if model.dampers:   # 1/(2 dt) (x - x_n)^T D_n (x - x_n), engine.energies.membrane (M3)
@@ -238,125 +281,46 @@ class BackwardEuler:
                 phi += 0.5 / dt * dot_vec3(d, hq)
             else:
                 model.add_hessian_product(xn, d, hq, True)
-                phi += 0.5 * self.rayleigh_beta / dt * dot_vec3(d, hq)
+                phi += 0.5 * be.rayleigh_beta / dt * dot_vec3(d, hq)
         return phi
 
-    def advance(self, stepper, state: State, dt: float) -> None:
-        """One step of ``stepper.model`` with the stepper's work arrays; this integrator's linear
-        solver solves with the stepper's set-up (pattern, analysis) for that model."""
-        dt = float(dt)
-        if not (math.isfinite(dt) and dt > 0.0):
-            raise ParameterError(f"dt must be finite and > 0 (got {dt!r})")
-        model, solver = stepper.model, stepper.solver
-        damped = bool(model.dampers)
-        if damped and self.rayleigh_beta > 0.0:
-            raise ParameterError("rayleigh_beta and a membrane's Baraff-Witkin damping cannot be combined in one "
-                                 "backward-Euler step; use one of them")
-        work = {k: stepper.work.vec3("be_" + k) for k in ("xn", "f", "rhs", "dx", "trial", "d", "hq")}
-        x, v = state.x, state.v
-        xn, f, rhs, dx, trial = work["xn"], work["f"], work["rhs"], work["dx"], work["trial"]
-        inv_mass = model.inv_mass_nd
-        inv_dt2, a_dt = 1.0 / (dt * dt), self.rayleigh_alpha / dt
-        mass_coef, hess_coef = newton_coefficients(dt, self.rayleigh_alpha, self.rayleigh_beta)
-        copy_vec3(x, xn)
+    def residual(self, x, k: int) -> float:
+        """rhs = -grad Phi(x); returns |grad Phi|."""
+        model, work, be, dt = self.model, self.work, self.be, self.dt
+        model.forces(x, work["f"])
+        g2 = _be_residual(x, self.xn, self.v, work["f"], model.mass_nd, model.inv_mass_nd, self.inv_dt2, self.a_dt,
+                          dt, self.rhs)
+        if k > 0 and (be.rayleigh_beta > 0.0 or model.dampers):   # at x = x_n (k = 0) their terms vanish
+            d, hq = work["d"], work["hq"]
+            sub_into(x, self.xn, d)
+            zero_vec3(hq)
+            if be.rayleigh_beta > 0.0:   # the beta H_n (x - x_n)/dt damping force
+                model.add_hessian_product(self.xn, d, hq, True)
+                g2 = _be_add_scaled(self.rhs, hq, be.rayleigh_beta / dt, model.inv_mass_nd)
+            else:                        # the damping force -D_n v+ = -D_n (x - x_n)/dt
+                model.add_damping_product(self.xn, d, hq)
+                g2 = _be_add_scaled(self.rhs, hq, 1.0 / dt, model.inv_mass_nd)
+        gnorm = math.sqrt(g2)
+        self.gradient_norms.append(gnorm)
+        if self.g0 is None:
+            # the scale the tolerance is relative to: |grad Phi(x_n)|, but at least the weight |M g| (a settled
+            # hanging body has a round-off-sized gradient that Newton cannot reduce by newton_tol again)
+            self.g0 = max(gnorm, model.weight_norm)
+        return gnorm
 
-        info = StepInfo()
-        self.last_info = info
-        W_n = phi = 0.0
-        if self.line_search:
-            W_n = model.elastic_energy(xn)
-            phi = self._objective(model, x, xn, v, dt, W_n, work)  # = kinetic energy at x_n
-            info.objectives.append(phi)
-        g0 = None
-        k = 0
-        exact_ok = True
-        while True:
-            # rhs = -grad Phi(x)
-            model.forces(x, f)
-            g2 = _be_residual(x, xn, v, f, model.mass_nd, inv_mass, inv_dt2, a_dt, dt, rhs)
-            if self.rayleigh_beta > 0.0 and k > 0:
-                d, hq = work["d"], work["hq"]
-                sub_into(x, xn, d)
-                zero_vec3(hq)
-                model.add_hessian_product(xn, d, hq, True)
-                g2 = _be_add_scaled(rhs, hq, self.rayleigh_beta / dt, inv_mass)
-            elif damped and k > 0:   # the damping force -D_n v+ = -D_n (x - x_n)/dt
-                d, hq = work["d"], work["hq"]
-                sub_into(x, xn, d)
-                zero_vec3(hq)
-                model.add_damping_product(xn, d, hq)
-                g2 = _be_add_scaled(rhs, hq, 1.0 / dt, inv_mass)
-            gnorm = math.sqrt(g2)
-            info.gradient_norms.append(gnorm)
-            if g0 is None:
-                # the scale the tolerance is relative to: |grad Phi(x_n)|, but at least the weight
-                # |M g| (a settled hanging body has a round-off-sized gradient that Newton cannot
-                # reduce by newton_tol again)
-                g0 = max(gnorm, model.weight_norm)
-            if gnorm <= self.newton_tol * g0 or gnorm == 0.0:
-                info.newton_converged = True
-                break
-            if k == self.newton_iterations:
-                break
-            # Newton direction (N1), filtered on pinned vertices; near the solution optionally with
-            # the exact Hessian (quadratic convergence), falling back to the PSD one where it fails
-            use_exact = (self.exact_near_solution and self.newton_iterations > 1 and exact_ok
-                         and gnorm < EXACT_BELOW * g0)
-            if damped:                                 # + D_n/dt, the damping's Jacobian
-                with solver.using(stepper.solver_setup):
-                    lin = solver.solve(model, x, rhs, dx, mass_coef, hess_coef, psd=not use_exact,
-                                       extra=(1.0 / dt, xn, "damping"))
-            elif k == 0 or self.rayleigh_beta == 0.0:   # x = x_n: the damping Hessian is H(x)
-                with solver.using(stepper.solver_setup):
-                    lin = solver.solve(model, x, rhs, dx, mass_coef, hess_coef, psd=not use_exact)
-            else:                                      # H(x) + (beta/dt) H_n
-                with solver.using(stepper.solver_setup):
-                    lin = solver.solve(model, x, rhs, dx, mass_coef, 1.0, psd=not use_exact,
-                                       extra=(self.rayleigh_beta / dt, xn))
-            self.total_solves += 1
-            self.total_linear_iterations += lin.iterations
-            slope = -dot_vec3(rhs, dx) if lin.converged else 0.0  # grad Phi . dx < 0: descent
-            if use_exact and not (lin.converged and slope < 0.0):
-                exact_ok = False  # indefinite: back to the PSD Hessian, same iteration
-                continue
-            info.linear_iterations.append(lin.iterations)
-            info.linear_residuals.append(lin.residual)
-            if not lin.converged:
-                copy_vec3(xn, x)  # leave the state as it was
-                raise SolverError(f"backward-euler step at t={state.t:.6g} s, Newton iteration {k + 1}: "
-                                  f"{lin.describe()}; raise max_iter or tol, or use solver='cholesky'")
-            k += 1
-            info.newton_iterations = k
-            if k % EXACT_RETRY == 0:
-                exact_ok = True  # retry the exact Hessian now and then
-            if self.line_search:
-                s = 1.0
-                accepted = False
-                for _ in range(MAX_BACKTRACKS + 1):
-                    axpy_into(x, dx, s, trial)
-                    phi_t = self._objective(model, trial, xn, v, dt, W_n, work)
-                    if phi_t < phi and phi_t <= phi + ARMIJO_C1 * s * slope:
-                        accepted = True
-                        break
-                    s *= 0.5
-                if not accepted:
-                    info.line_search_failed = True  # no measurable decrease (round-off level): stop here
-                    break
-                if use_exact and s < 1.0:
-                    exact_ok = False
-                copy_vec3(trial, x)
-                phi = phi_t
-                info.objectives.append(phi)
-                info.step_sizes.append(s)
-            else:
-                axpy_into(x, dx, 1.0, x)
-                info.step_sizes.append(1.0)
-            if self.newton_iterations == 1:
-                break  # Baraff & Witkin: one linearised step, no final gradient evaluation
-        _be_finish(x, xn, v, inv_mass, 1.0 / dt)
-        state.t += dt
-        self.total_steps += 1
+    def converged(self, r: float) -> bool:
+        return r <= self.be.newton_tol * self.g0 or r == 0.0
 
-    def __repr__(self) -> str:
-        return (f"<integrator backward-euler solver={self.solver.name} tol={self.tol:g} "
-                f"newton_iterations={self.newton_iterations} line_search={self.line_search}>")
+    def near(self, r: float) -> bool:
+        return r < EXACT_BELOW * self.g0
+
+    def direction(self, x, dx, k: int, psd: bool, mu: float):
+        """(N1), filtered on pinned vertices."""
+        be, model, solver, dt = self.be, self.model, self.solver, self.dt
+        if model.dampers:                               # + D_n/dt, the damping's Jacobian
+            return solver.solve(model, x, self.rhs, dx, self.mass_coef, self.hess_coef, psd=psd,
+                                extra=(1.0 / dt, self.xn, "damping"))
+        if k == 0 or be.rayleigh_beta == 0.0:           # x = x_n: the damping Hessian is H(x)
+            return solver.solve(model, x, self.rhs, dx, self.mass_coef, self.hess_coef, psd=psd)
+        return solver.solve(model, x, self.rhs, dx, self.mass_coef, 1.0, psd=psd,   # H(x) + (beta/dt) H_n
+                            extra=(be.rayleigh_beta / dt, self.xn))

@@ -19,11 +19,12 @@ assert tuple(INTEGRATORS) == INTEGRATOR_NAMES and tuple(n for n, i in INTEGRATOR
 
 
 def register(name: str, integrator) -> None:
-    """Add an integrator under ``name`` (it needs ``begin(stepper, state)`` and
-    ``advance(stepper, state, dt)``; see :class:`engine.integrators.stepper.Stepper`)."""
+    """Add an integrator under ``name`` (it needs ``begin(ctx, state)`` and ``advance(ctx, state, dt)``,
+    handed a StepContext; see :class:`engine.integrators.stepper.Stepper`; it keeps nothing between
+    steps, since the registered instance serves every stepper)."""
     for method in ("begin", "advance"):
         if not callable(getattr(integrator, method, None)):
-            raise TypeError(f"integrator {name!r} has no {method}(stepper, state, ...) method")
+            raise TypeError(f"integrator {name!r} has no {method}(ctx, state, ...) method")
     INTEGRATORS[name] = integrator
 
 

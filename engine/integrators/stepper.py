@@ -2,9 +2,15 @@
 
 A stepper decides once, from the model's energies and the integrator, which kernels a step
 launches, and it owns everything a step needs besides the state: the work arrays, the fast
-kernels' plan and, for an implicit integrator, its linear solver's set-up (pattern, symbolic
-analysis).
-Nothing is kept per model anywhere else. Its ``path`` says what it planned:
+step's plan and, for an implicit integrator, its own linear solver (:meth:`LinearSolver.fresh`:
+the integrator's kind and options, with this stepper's pattern and symbolic analysis) and the
+statistics of its steps (:attr:`Stepper.last_info`, :attr:`Stepper.stats`). The direction is one
+way, as in Warp's ``integrator.simulate(model, state_in, state_out, dt)``: the stepper hands an
+integrator a :class:`StepContext` (model, work arrays, dampers, solver) and the state, and the
+integrator never reaches back; the fast paths are the stepper's own
+(engine.integrators.explicit.FastStep, planned for one method). Integrators keep nothing between
+steps: one instance may serve any number of steppers. Nothing is kept per model anywhere else.
+Its ``path`` says what it planned:
 
 - ``"scene"``: a scene with its own many-steps kernel (``scene.run``, e.g. engine.scenes.Rod), one
   launch per chunk; the integrator is then a method name the scene knows;
@@ -26,6 +32,8 @@ energies and blow-up checks; :func:`run` is both for one call.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from engine import diagnostics
@@ -36,6 +44,25 @@ from engine.integrators.explicit import CLOTH_METHODS, cloth_stepper, corner_ste
 from engine.integrators.monitor import Monitor
 from engine.integrators.registry import EXPLICIT, get
 from engine.solvers import SolverError
+
+
+@dataclass(frozen=True)
+class StepContext:
+    """What an integrator is handed for a step: the model, the stepper's work arrays, whether the model
+    has velocity-dependent forces, and (implicit) the stepper's own linear solver."""
+    model: object
+    work: WorkArrays
+    dampers: bool
+    solver: object = None
+
+
+@dataclass
+class StepStats:
+    """A stepper's implicit steps so far: steps, linear solves (refused exact-Hessian ones included)
+    and their iterations."""
+    steps: int = 0
+    solves: int = 0
+    linear_iterations: int = 0
 
 
 class Stepper:
@@ -61,9 +88,10 @@ class Stepper:
         self._fast_work: dict = {}  # the fast step's arrays (kept if the plan is made again)
         self._requested = many_steps
         self._key = None
-        # an implicit integrator's linear solver solves with this stepper's set-up (pattern, analysis)
-        self.solver = self.integrator.solver if self.implicit and self.scene_run is None else None
-        self.solver_setup: dict = {}
+        # an implicit integrator's solver kind and options, with this stepper's own set-up (pattern, analysis)
+        self.solver = self.integrator.solver.fresh() if self.implicit and self.scene_run is None else None
+        self.last_info = None         # what the last implicit step did (engine.integrators.implicit.StepInfo)
+        self.stats = StepStats()
         self._plan()
 
     # -- the plan --------------------------------------------------------------------------------
@@ -73,12 +101,14 @@ class Stepper:
 
     def _plan(self) -> None:
         self._key = self._energies_key()
-        self.fast = None  # the planned fast step (cloth_stepper, corner_stepper) or None
+        self.fast = None  # the planned fast step (a FastStep of cloth_stepper or corner_stepper) or None
         self.many_steps = False
         self.dampers = bool(getattr(self.model, "dampers", ()))   # velocity-dependent forces: the generic path
         if self.scene_run is not None:
             self.path = "scene"
+            self.context = None
             return
+        self.context = StepContext(self.model, self.work, self.dampers, self.solver)
         if self.implicit:
             self.path = "implicit"
             return
@@ -92,7 +122,7 @@ class Stepper:
         self.path = "generic"
         if getattr(self.integrator, "fused", False) and self.name in CLOTH_METHODS and not self.dampers:
             for path, plan in (("one-launch", cloth_stepper), ("two-pass", corner_stepper)):
-                self.fast = plan(self.model, work=self._fast_work)
+                self.fast = plan(self.model, self.name, work=self._fast_work)
                 if self.fast is not None:
                     self.path = path
                     break
@@ -105,11 +135,24 @@ class Stepper:
     def begin(self, state) -> None:
         """What the method prepares from the current state before its steps (Verlet's acceleration)."""
         self._check_plan()
-        self.integrator.begin(self, state)
+        if self.fast is not None:
+            self.fast.begin(state)
+        else:
+            self.integrator.begin(self.context, state)
 
     def advance(self, state, dt: float) -> None:
-        """One step of ``dt`` (after :meth:`begin`)."""
-        self.integrator.advance(self, state, dt)
+        """One step of ``dt`` (after :meth:`begin`); an implicit step's StepInfo is kept in
+        :attr:`last_info` and counted in :attr:`stats`."""
+        if self.fast is not None:
+            self.fast.step(state, dt)
+            state.t += dt
+            return
+        info = self.integrator.advance(self.context, state, dt)
+        if info is not None:
+            self.last_info = info
+            self.stats.steps += 1
+            self.stats.solves += info.solves
+            self.stats.linear_iterations += info.all_linear_iterations
 
     def step(self, state, dt: float, n_steps: int = 1) -> None:
         """``n_steps`` steps of ``dt``, nothing watched: :meth:`begin`, then the steps (all in one
@@ -121,12 +164,32 @@ class Stepper:
             return
         self.begin(state)
         if self.fast is not None and n_steps > 0:
-            self.fast(state, dt, self.name, n_steps)
+            self.fast.step(state, dt, n_steps)
             for _ in range(n_steps):
                 state.t += dt
             return
         for _ in range(n_steps):
             self.advance(state, dt)
+
+    def energies(self, state, dt: float, n_steps: int, energy_bound: float | None = None,
+                 step_offset: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """``n_steps`` steps of ``dt``, returning (kinetic, potential) after every step (J): in one launch
+        on the scene and many-steps paths, else step by step. A step whose total energy is not finite
+        or exceeds ``energy_bound`` raises the monitor's BlowUpError naming that step (``step_offset`` +
+        its index, counted from 1) with the energies up to it; the state stays at that step."""
+        dt, n_steps = float(dt), int(n_steps)
+        if self.scene_run is not None:
+            return self.scene_run(state, dt, n_steps, self.name, energy_bound, step_offset=step_offset)
+        self._check_plan()
+        if self.many_steps:
+            monitor = Monitor(self.name, dt, energy_bound, model=self.model)
+            return many_steps(self.model, state, dt, n_steps, self.name, monitor, self.work, step_offset)
+        if n_steps < 0:
+            raise ValueError(f"n_steps must be >= 0 (got {n_steps})")
+        if n_steps == 0:
+            return np.zeros(0), np.zeros(0)
+        _, kin, pot = self.advancer(state, dt, n_steps, energy_bound)(n_steps, step_offset)   # steps counted on
+        return kin, pot
 
     # -- stepping inside the run loop ------------------------------------------------------------
     def advancer(self, state, dt: float, n_total: int, energy_bound: float | None = None, energy_every: int = 1,
@@ -166,7 +229,7 @@ class Stepper:
                     check_interrupt()
                 try:
                     for _ in range(substeps):
-                        self.integrator.advance(self, state, h)
+                        self.advance(state, h)
                 except SolverError as err:  # the integrator left the state at the last good step
                     E = diagnostics.total_energy(model, state)
                     exc = monitor.solver_failure(s - 1, state.t, E, err)

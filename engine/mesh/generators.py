@@ -1,6 +1,6 @@
 """Mesh generators: the rod, grids and lattices of triangles, boxes of tets, and the maps that
 jitter, embed, rotate and roll them (pure numpy, SI units). Every generator validates its output
-(engine.mesh.core.validate) and raises MeshError naming a bad parameter."""
+(engine.mesh.validation.validate) and raises MeshError naming a bad parameter."""
 from __future__ import annotations
 
 import dataclasses
@@ -8,8 +8,9 @@ import math
 
 import numpy as np
 
-from engine.mesh.core import TET_FACES, TRIANGLE_EDGES, Mesh, MeshError, validate
+from engine.mesh.core import TET_FACES, TRIANGLE_EDGES, Mesh, MeshError
 from engine.mesh.measures import tet_volumes, triangle_areas
+from engine.mesh.validation import validate
 
 __all__ = ["rod", "right_triangle_grid", "equilateral_lattice", "tet_box", "jitter", "embed_3d",
            "rotate_2d", "cylinder_wrap", "half_cylinder"]

@@ -11,7 +11,7 @@ from engine.fields import float_dtype, vec3_ndarray, zero_vec3
 from engine.model import Model
 from engine.solvers.assembly import (CSRPattern, assemble_energy, assemble_mass, assemble_rows, init_rows,
                                      triplet_capacity)
-from engine.solvers.operator import LinearSolver, LinearSolveInfo, _apply_plan, _hessian_plan, _scaled, element_terms
+from engine.solvers.operator import LinearSolver, LinearSolveInfo, apply_plan, hessian_plan, scaled_operator, element_terms
 
 
 def upper_product(U, y: np.ndarray, diag: np.ndarray | None = None) -> np.ndarray:
@@ -56,11 +56,11 @@ class DirectSolver(LinearSolver):
     def _product(self, model: Model, entry: dict, x, a_s: float, psd: bool, extra):
         """``product(sol, y) -> A' sol`` (numpy, 3n) for the residual check; ``y`` holds sol as a
         vec3 ndarray.  Here the matrix-free operator (L1) in Taichi kernels."""
-        plan = _hessian_plan(model, x, psd, extra, work=entry["work"])
+        plan = hessian_plan(model, x, psd, extra, work=entry["work"])
         q = entry["q"]
 
         def product(sol, y):
-            _apply_plan(model, plan, a_s, y, q)
+            apply_plan(model, plan, a_s, y, q)
             return q.to_numpy().astype(np.float64).reshape(-1)
         return product
 
@@ -69,7 +69,7 @@ class DirectSolver(LinearSolver):
         a, c = self._coefficients(mass_coef, hess_coef)
         entry = self._setup(model)
         t0 = time.perf_counter()
-        ok = self._factorize(model, entry, x, a / c, psd, _scaled(extra, c))
+        ok = self._factorize(model, entry, x, a / c, psd, scaled_operator(extra, c))
         t1 = time.perf_counter()
         self.last_timings = {"assembly": entry.pop("_assembly_s", 0.0), "factorization": t1 - t0, "solve": 0.0}
         self.last_timings["factorization"] -= self.last_timings["assembly"]
@@ -85,7 +85,7 @@ class DirectSolver(LinearSolver):
             return self._info(0, 0.0)
         sol = np.asarray(self._backsolve(entry, rhs), dtype=np.float64).reshape(-1)
         y.from_numpy(sol.reshape(-1, 3).astype(float_dtype()))
-        product = self._product(model, entry, x, a / c, psd, _scaled(extra, c))
+        product = self._product(model, entry, x, a / c, psd, scaled_operator(extra, c))
         it = 1
         while True:
             res = rhs - product(sol, y)  # rhs - A' sol
@@ -129,7 +129,7 @@ class CholeskySolver(DirectSolver):
         entry = self._setup(model)
         c = float(hess_coef)
         a_s = float(mass_coef) / c
-        extra = _scaled(extra, c)
+        extra = scaled_operator(extra, c)
         if extra is None:
             B = entry["builder"]
         else:  # the same pattern with every element block written twice

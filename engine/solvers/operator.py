@@ -1,7 +1,7 @@
 """The linear system of the implicit steps, (L1)-(L3) of :mod:`engine.solvers`: its matrix-free
 product (:func:`apply_system`), the per-energy Hessian plan every solver applies, the result of a
 solve (:class:`LinearSolveInfo`, :class:`SolverError`) and the solvers' base class."""
-import contextlib
+import copy
 import math
 from typing import NamedTuple
 
@@ -69,7 +69,7 @@ def _filtered_scale(q: vec3_array, inv_mass: scalar_array, c: float):
 # Operator helpers
 # --------------------------------------------------------------------------------------------
 
-def _hessian_plan(model: Model, x, psd: bool = True, extra=None, blocks: dict | None = None,
+def hessian_plan(model: Model, x, psd: bool = True, extra=None, blocks: dict | None = None,
                   work: WorkArrays | None = None):
     """One callable per energy, ``add(p, q)``: q += H_e(x) p with the PSD (or exact) Hessian.
     Energies offering the "blocks" product (springs) compute their blocks here, once per solve
@@ -102,7 +102,7 @@ def _hessian_plan(model: Model, x, psd: bool = True, extra=None, blocks: dict | 
     return plan
 
 
-def _scaled(extra, c: float):
+def scaled_operator(extra, c: float):
     """extra = (s, x2[, kind]) of A = a M + c H(x) + s H(x2) (or s D(x2)), as seen in A' = A / c;
     None if absent."""
     if extra is None or float(extra[0]) == 0.0:
@@ -135,7 +135,7 @@ def element_terms(model: Model, x, psd: bool, extra):
             yield 1.0, e, e.hessian_blocks(x, psd)
 
 
-def _apply_plan(model: Model, plan, a: float, p, q) -> None:
+def apply_plan(model: Model, plan, a: float, p, q) -> None:
     """q = a M p + H p (unfiltered)."""
     _mass_product(p, model.mass_nd, a, q)
     for add in plan:
@@ -149,7 +149,7 @@ def apply_system(model: Model, x, p, q, mass_coef: float, hess_coef: float = 1.0
     c = float(hess_coef)
     if c <= 0.0:
         raise ValueError(f"hess_coef must be > 0 (got {hess_coef!r})")
-    _apply_plan(model, _hessian_plan(model, x, psd, _scaled(extra, c)), float(mass_coef) / c, p, q)
+    apply_plan(model, hessian_plan(model, x, psd, scaled_operator(extra, c)), float(mass_coef) / c, p, q)
     _filtered_scale(q, model.inv_mass_nd, c)
 
 
@@ -161,7 +161,7 @@ class LinearSolver:
     """Base class: ``solve(model, x, b, y, mass_coef, hess_coef=1.0) -> LinearSolveInfo`` solves
     (L1)-(L2) for y (overwritten; 0 on pinned vertices).  ``tol`` is the relative residual (L3)
     to reach, ``max_iter`` the iteration limit.  The set-up for a model (work arrays, pattern,
-    analysis) is kept for one model at a time, or in a Stepper's holder (:meth:`using`)."""
+    analysis) is kept for one model at a time: a Stepper solves with its own (:meth:`fresh`)."""
 
     name = "linear"
 
@@ -182,18 +182,14 @@ class LinearSolver:
               psd: bool = True, extra=None) -> LinearSolveInfo:
         raise NotImplementedError
 
-    @contextlib.contextmanager
-    def using(self, holder: dict):
-        """Solve with the set-up kept in ``holder`` (a Stepper's: its model's pattern, analysis and
-        work arrays stay with it) instead of the solver's own; the options (tol, max_iter) are the
-        solver's, as they are at each solve."""
-        saved = (self._model, self._set_up)
-        self._model, self._set_up = holder.get("model"), holder.get("set_up")
-        try:
-            yield self
-        finally:
-            holder["model"], holder["set_up"] = self._model, self._set_up
-            self._model, self._set_up = saved
+    def fresh(self) -> "LinearSolver":
+        """A solver of the same kind and options with no set-up yet: a Stepper's own, which keeps its
+        model's pattern, analysis and work arrays for that stepper alone."""
+        twin = copy.copy(self)
+        twin._model, twin._set_up, twin.last_info = None, None, None
+        if hasattr(twin, "last_timings"):
+            twin.last_timings = {}
+        return twin
 
     def _entry(self, model: Model) -> dict:
         """The set-up (work arrays, pattern, analysis) for ``model``: one model at a time, rebuilt

@@ -10,7 +10,7 @@ from engine.energies.base import slot_gather
 from engine.fields import (free_dot, int_array, int_array2, mat3_array, mat3_array2, scalar_array, vec3_array,
                            vec3_array2, vec3_ndarray, zero_pinned, zero_vec3)
 from engine.model import Model
-from engine.solvers.operator import LinearSolver, LinearSolveInfo, _apply_plan, _hessian_plan, _scaled
+from engine.solvers.operator import LinearSolver, LinearSolveInfo, apply_plan, hessian_plan, scaled_operator
 
 
 # --------------------------------------------------------------------------------------------
@@ -323,8 +323,8 @@ class PCGSolver(LinearSolver):
         inv_mass, mass = model.inv_mass_nd, model.mass_nd
         a_s = a / c  # solve A' y = b / c with A' = a' M + H
         blocks = {}
-        plan = _hessian_plan(model, x, psd, _scaled(extra, c), blocks, w["work"])
-        fused = None if _scaled(extra, c) is not None else self._fused_setup(model, w, x, psd, blocks)
+        plan = hessian_plan(model, x, psd, scaled_operator(extra, c), blocks, w["work"])
+        fused = None if scaled_operator(extra, c) is not None else self._fused_setup(model, w, x, psd, blocks)
         serial = self.serial if self.serial is not None else model.n < SERIAL_BELOW
         whole = fused is not None and serial  # the whole CG loop in one serial kernel
 
@@ -381,7 +381,7 @@ class PCGSolver(LinearSolver):
                 beta = rz_new / rz
                 rz = rz_new
             # true residual (L3); if the recurrence drifted above tol, restart from y
-            _apply_plan(model, plan, a_s, y, q)
+            apply_plan(model, plan, a_s, y, q)
             res2, _ = _residual_norms(b, q, inv_mass, c)
             residual = math.sqrt(res2 / (bb * c * c))
             if residual <= self.tol or it >= self.max_iter or message:

@@ -8,7 +8,7 @@ import dataclasses
 import difflib
 import re
 
-from .._framework import Stepping, _field_type, range_text
+from .._framework import Stepping, field_type, range_text
 
 class UsageError(Exception):
     """Bad command-line input: reported as one line, exit code 2."""
@@ -19,7 +19,7 @@ class UsageError(Exception):
 _NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-(inf|infinity|nan)$", re.IGNORECASE)
 
 
-class _Parser(argparse.ArgumentParser):
+class Parser(argparse.ArgumentParser):
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
         self._negative_number_matcher = _NEGATIVE_NUMBER
@@ -120,7 +120,7 @@ def _add_config_options(parser: argparse.ArgumentParser, config_cls, title: str 
         meta = f.metadata
         if not meta:
             continue
-        kind = _field_type(f)
+        kind = field_type(f)
         flag = "--" + f.name.replace("_", "-")
         unit = f" [{meta['unit']}]" if meta.get("unit") else ""
         default = getattr(defaults, f.name)
@@ -134,14 +134,14 @@ def _add_config_options(parser: argparse.ArgumentParser, config_cls, title: str 
                                metavar=kind.__name__.upper(), help=help_)
 
 
-def _run_parser(lesson_ids: list[str], lesson=None) -> argparse.ArgumentParser:
+def run_parser(lesson_ids: list[str], lesson=None) -> argparse.ArgumentParser:
     prog = "python -m lessons run"
     desc = ("Run a lesson's stages: each stage prints its narrative and a table of experiments "
             "(claim, theory, measured, tolerance, pass/fail) and logs everything to a Rerun recording.")
     if lesson is not None:
         desc = f"{lesson.id}: {lesson.title}. {lesson.summary}\nStages: " + "; ".join(
             f"{i}. {s.title}" for i, s in enumerate(lesson.stages, 1))
-    p = _Parser(prog=prog, description=desc, formatter_class=argparse.RawDescriptionHelpFormatter,
+    p = Parser(prog=prog, description=desc, formatter_class=argparse.RawDescriptionHelpFormatter,
                 epilog="Exit codes: 0 all experiments passed, 1 an experiment failed (or an output file could "
                        "not be written), 2 bad input, 130 interrupted (SIGINT), 143 terminated (SIGTERM), 129 "
                        "hung up (SIGHUP), 141 output pipe closed. Environment: ELASTIC_ARCH, ELASTIC_THREADS, "
@@ -189,8 +189,8 @@ def _run_parser(lesson_ids: list[str], lesson=None) -> argparse.ArgumentParser:
     return p
 
 
-def _main_parser(lesson_ids: list[str]) -> argparse.ArgumentParser:
-    p = _Parser(prog="python -m lessons",
+def main_parser(lesson_ids: list[str]) -> argparse.ArgumentParser:
+    p = Parser(prog="python -m lessons",
                 description="Elastic-simulation lessons in Taichi, recorded with Rerun.",
                 epilog="Commands:\n  list              one line per lesson: id, title, stages\n"
                        "  run LESSON|all    run lessons (see 'python -m lessons run LESSON --help' for "
@@ -216,11 +216,11 @@ def _version() -> str:
     return f"(elastic-lessons) {package_version()}"
 
 
-def _lesson_token(argv: list[str], lessons_) -> str | None:
+def lesson_token(argv: list[str], lessons_) -> str | None:
     """The LESSON argument: the first token that is neither an option nor an option's value, so
     that options may come first (``run --stage 2 rod-waves``). Mirrors argparse: a value follows
     an option that takes one (spelled out or abbreviated) unless it looks like an option."""
-    parsers = [_run_parser([], None)] + [_run_parser([], l) for l in lessons_]
+    parsers = [run_parser([], None)] + [run_parser([], l) for l in lessons_]
     actions = [a for p in parsers for a in p._actions]
     options = {s for a in actions for s in a.option_strings}
     takes_value = {s for a in actions if a.nargs is None for s in a.option_strings}

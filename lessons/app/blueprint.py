@@ -21,9 +21,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import rerun.blueprint as rrb
 
+from ..views import CAMERAS
+
 PROGRESS_TICKS = 1000       # a run's span on the ``progress`` timeline
 PLAYBACK_SECONDS = 20.0     # a run plays in this many seconds at the viewer's 1x speed
-CAMERAS = ("top", "front", "outside")
 ENERGY_PLOT_NAME = "{unit}: K · W · E"   # unit: the run's energy unit (RunPlan.energy_unit); colours: ENERGY_KEY
 ENERGY_KEY = "energy plots: K kinetic green, W potential blue, E = K + W white"
 DRIFT_PLOT_NAME = "(E − E1)/|E1|"
@@ -31,29 +32,6 @@ FOV_Y = math.radians(55.0)  # the 3D view's vertical field of view (the viewer's
 
 
 # ------------------------------------------------------------------------------ the plan
-
-@dataclass
-class RunView:
-    """How a run is shown: its view's ``label``, the ``camera`` (one of CAMERAS; default: the
-    lesson's), what its energy plot shows (``"split"``: kinetic, potential and total; ``"drift"``:
-    the relative change of the total, for runs about conservation; None: no plot) and its ``span``
-    on the progress timeline in simulated seconds (default: the run's planned duration; give the
-    stage's longest run's to keep runs of different lengths in step). ``plot`` (entity, title): a plot
-    of the run's own series under ``<run>/<entity>`` (logged with Recorder.scalar_series) in place
-    of the energy plot."""
-
-    label: str | None = None
-    camera: str | None = None
-    energy: str | None = "split"
-    span: float | None = None
-    plot: tuple[str, str] | None = None
-
-    def __post_init__(self):
-        if self.camera is not None and self.camera not in CAMERAS:
-            raise ValueError(f"camera must be one of {CAMERAS} (got {self.camera!r})")
-        if self.energy not in ("split", "drift", None):
-            raise ValueError(f"energy must be 'split', 'drift' or None (got {self.energy!r})")
-
 
 @dataclass
 class RunPlan:

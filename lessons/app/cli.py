@@ -31,11 +31,11 @@ from pathlib import Path
 from lessons.app.outfile import OutputWriteError
 
 from . import registry
-from .arguments import UsageError, _main_parser
-from .output_paths import _outputs, _prepare, _shown
+from .arguments import UsageError, main_parser
+from .output_paths import output_targets, prepare_outputs, shown_path
 from .results import encode as encode_results, results_document
-from .run_plan import _plan_run, _RunPlan
-from .._framework import Terminated, _pending_signal, note_signal, run_lesson
+from .run_plan import plan_run, RunRequest
+from .._framework import Terminated, pending_signal, note_signal, run_lesson
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INT, EXIT_TERM = 0, 1, 2, 130, 143
 EXIT_HUP, EXIT_PIPE = 129, 141
@@ -131,7 +131,7 @@ def run(argv: list[str], out=None, err=None, stdin=None, signals: "_Signals | No
     out = sys.stdout if out is None else out  # looked up per call (the streams may be redirected)
     err = sys.stderr if err is None else err
     stdin = sys.stdin if stdin is None else stdin
-    plan = _plan_run(argv, stdin, out)
+    plan = plan_run(argv, stdin, out)
     info = _start_runtime(plan.args, plan.chosen, plan.configs, err)
     outputs = _prepare_outputs(plan.args, plan.chosen)
     session = _Session(plan, info, outputs, signals if signals is not None else _Signals(), out, err)
@@ -156,10 +156,10 @@ def _prepare_outputs(args, chosen: list):
     """Every output path: checked (kinds, names, overlaps), then created as empty temporary files
     beside their targets, before the first stage; a bad one is bad input (exit 2, nothing left).
     Returns (the results target or None, the recording target by lesson id, every (option, target))."""
-    results_target, record_targets = _outputs(args, chosen)
+    results_target, record_targets = output_targets(args, chosen)
     targets = ([("--results", results_target)] if results_target is not None else []) + [
         ("--record", t) for t in record_targets.values() if t is not None]
-    _prepare(targets)
+    prepare_outputs(targets)
     return results_target, record_targets, targets
 
 
@@ -170,7 +170,7 @@ class _Session:
     done so far: the stages asked and completed per lesson, the experiments' results, whether every
     one passed, whether ``--pause`` stopped the run, and the exception that ended it."""
 
-    def __init__(self, plan: _RunPlan, info, outputs, signals: _Signals, out, err):
+    def __init__(self, plan: RunRequest, info, outputs, signals: _Signals, out, err):
         self.plan, self.info, self.signals, self.out, self.err = plan, info, signals, out, err
         self.results_target, self.record_targets, self.targets = outputs
         stages = plan.stages
@@ -267,7 +267,7 @@ class _Session:
             written = rec.close(status=status) if target is not None else rec.close()
         except OutputWriteError as e:
             self.unrecorded.append(l.id)
-            raise OutputFailed(f"--record {_shown(target.given)}: could not write the recording "
+            raise OutputFailed(f"--record {shown_path(target.given)}: could not write the recording "
                                f"({e.strerror or e}); {_left_there(target)}") from None
         finally:
             signals.cleaning = was_cleaning
@@ -297,10 +297,10 @@ class _Session:
         if written is None:
             return
         if complete:
-            _say(self.out, f"\nrecording: {_shown(str(written))}  (open with: rerun {_shown(str(written))})")
+            _say(self.out, f"\nrecording: {shown_path(str(written))}  (open with: rerun {shown_path(str(written))})")
         else:
             _say(self.out, f"\nrecording (PARTIAL: {reason}; stages {_stage_list(self.completed[l.id])} of "
-                           f"{_stage_list(self.requested[l.id])}): {_shown(str(written))}{_earlier(target)}")
+                           f"{_stage_list(self.requested[l.id])}): {shown_path(str(written))}{_earlier(target)}")
 
     def _finish(self) -> None:
         """The end of the run, however it ended (signals from here on are only noted): close a
@@ -330,11 +330,11 @@ class _Session:
             target.write_bytes(encode_results(doc))
             where = target.commit(complete)
             if complete:
-                _say(self.out, f"results: {_shown(str(where))}")
+                _say(self.out, f"results: {shown_path(str(where))}")
             else:
-                _say(self.out, f"results (PARTIAL: {reason}): {_shown(str(where))}{_earlier(target)}")
+                _say(self.out, f"results (PARTIAL: {reason}): {shown_path(str(where))}{_earlier(target)}")
         except OutputWriteError as e:
-            _say(self.err, f"python -m lessons: error: --results {_shown(target.given)}: could not write "
+            _say(self.err, f"python -m lessons: error: --results {shown_path(target.given)}: could not write "
                            f"the results ({e.strerror or e}); {_left_there(target)}")
             if self.failure is None:
                 self.failure = OutputFailed("the results could not be written")
@@ -362,8 +362,8 @@ class OutputFailed(Exception):
 def _earlier(target) -> str:
     """What became of the file under the final name, said after where a partial output went."""
     if target.written != target.path:
-        return f"; the earlier {_shown(str(target.path))} is kept" if target.path.exists() else ""
-    return f"; it replaced the earlier {_shown(str(target.path))} (--overwrite-partial)" if target.replaced else ""
+        return f"; the earlier {shown_path(str(target.path))} is kept" if target.path.exists() else ""
+    return f"; it replaced the earlier {shown_path(str(target.path))} (--overwrite-partial)" if target.replaced else ""
 
 
 def _left_there(target) -> str:
@@ -389,7 +389,8 @@ def _package_version() -> str:
 def _make_recorder(lesson, path, live: bool = False):
     """The lesson's recorder: the file at ``path`` (None: no file), streaming into a viewer that
     follows the stage being run when ``live``."""
-    from lessons.app.recorder import NullRecorder, Recorder
+    from lessons.app.recorder import Recorder
+    from lessons.app.recorder_null import NullRecorder
     if path is None and not live:
         return NullRecorder()
     return Recorder(path, "elastic_lessons_" + lesson.id.replace("-", "_"), title=f"{lesson.id}: {lesson.title}",
@@ -402,7 +403,7 @@ def main(argv: list[str] | None = None, restore_signals: bool = True) -> int:
     own entry point keeps them until the process ends, so a late signal never kills it)."""
     argv = list(sys.argv[1:] if argv is None else argv)
     signals = _Signals()
-    _pending_signal.clear()
+    pending_signal.clear()
     previous = {sig: signal.signal(sig, signals.handler) for sig in HANDLED_SIGNALS}
     try:
         try:
@@ -415,7 +416,7 @@ def main(argv: list[str] | None = None, restore_signals: bool = True) -> int:
             raise UsageError("a command is required: list, run, exercise, check or grade (see 'python -m lessons "
                              "--help')")
         if argv[0] in ("-h", "--help", "--version"):
-            _main_parser(ids).parse_args(argv[:1])
+            main_parser(ids).parse_args(argv[:1])
             return EXIT_OK
         command, rest = argv[0], argv[1:]
         if command == "list":
@@ -467,7 +468,7 @@ def main(argv: list[str] | None = None, restore_signals: bool = True) -> int:
                          f"report it)")
         return EXIT_FAILED
     finally:
-        _pending_signal.clear()
+        pending_signal.clear()
         if restore_signals:
             for sig, handler in previous.items():
                 signal.signal(sig, handler)

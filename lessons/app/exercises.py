@@ -12,7 +12,7 @@ from pathlib import Path
 from .._exercise import NUMPY, TI_FUNC, module_file
 from .arguments import UsageError
 from .outfile import OutputFile, OutputWriteError
-from .output_paths import _shown
+from .output_paths import shown_path
 from . import registry
 
 TEMPLATE_HEAD = '''"""Exercise: {title}.
@@ -72,7 +72,7 @@ def template_text(lesson, folder: str) -> str:
     return "".join(parts)
 
 
-def _prepare(folder: Path, paths: list[Path]) -> list[OutputFile]:
+def prepare_outputs(folder: Path, paths: list[Path]) -> list[OutputFile]:
     """The templates' output files, checked and created (missing folders too) as empty temporary files
     before any is written, all or none: a DIR that cannot receive them is bad input (UsageError)."""
     files = []
@@ -84,7 +84,7 @@ def _prepare(folder: Path, paths: list[Path]) -> list[OutputFile]:
     except OSError as exc:
         for file in reversed(files):
             file.discard(remove_dirs=True)
-        raise UsageError(f"DIR {_shown(str(folder))}: cannot write the templates there ({exc.strerror or exc}); "
+        raise UsageError(f"DIR {shown_path(str(folder))}: cannot write the templates there ({exc.strerror or exc}); "
                          f"give a folder you can write to") from None
     return files
 
@@ -114,7 +114,7 @@ def write_template(argv: list[str], out) -> int:
     if existing:
         raise UsageError(f"{', '.join(existing)} already exists: it may hold your work; give another DIR "
                          f"or move it away first")
-    files = _prepare(folder, [path for _, path in targets])
+    files = prepare_outputs(folder, [path for _, path in targets])
     try:
         for (lesson, _), file in zip(targets, files):
             file.write_bytes(template_text(lesson, str(folder)).encode("utf-8"))
@@ -126,7 +126,7 @@ def write_template(argv: list[str], out) -> int:
                 file.written.unlink(missing_ok=True)
             file.discard(remove_dirs=True)
         from .cli import OutputFailed
-        raise OutputFailed(f"DIR {_shown(str(folder))}: could not write the templates ({exc.strerror or exc}); "
+        raise OutputFailed(f"DIR {shown_path(str(folder))}: could not write the templates ({exc.strerror or exc}); "
                            f"nothing is left there") from None
     for lesson, path in targets:
         names = ", ".join(t.name for t in exercise_module(lesson).TASKS)

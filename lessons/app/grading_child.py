@@ -1,10 +1,10 @@
-"""The grading child: the only process that runs the student's code (lessons.app.grading starts it,
+"""The grading child: the only process that runs the student's code (lessons.app.grading_remote starts it,
 talks to it over two pipes and stops it at its time limits).
 
     python -m lessons.app.grading_child LESSON SOLUTION_FILE IN_FD OUT_FD GRADER_PID CPU_S MEMORY_BYTES
 
 It ends itself with the grader and runs under CPU-time and memory limits; starts Taichi and loads
-the engine and the lesson; arms the guard (lessons.app.sandbox); imports the student's module with
+the engine and the lesson; arms the guard (lessons.app.sandbox_guard); imports the student's module with
 restricted builtins; says ``{"ready": ..., "notes": [...], "own": {name: why not}}`` (or
 ``{"error": line}``) and then answers requests, one at a time (lessons.app.channel):
 
@@ -43,7 +43,7 @@ def _factory(spec: str):
 def main(argv: list[str]) -> int:
     lesson_id, solution, in_fd, out_fd, grader_pid, cpu_s, memory = argv
     in_fd, out_fd = int(in_fd), int(out_fd)
-    from .sandbox import limit_child
+    from .sandbox_guard import limit_child
     limit_child(int(grader_pid), float(cpu_s), int(memory) or None)
     from . import channel
     reader = channel.Reader(in_fd)
@@ -56,7 +56,7 @@ def main(argv: list[str]) -> int:
     from .._exercise import StudentError, call_student, direct, load_before_swap, normalise_result
     from . import registry
     from .exercises import exercise_module
-    from .sandbox import Guard, load_guarded, own_function
+    from .sandbox_guard import Guard, load_guarded, own_function
 
     lesson = registry.get(lesson_id)
     module = exercise_module(lesson)

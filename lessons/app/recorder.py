@@ -31,8 +31,9 @@ Entity layout (``S`` = ``stage<N>``, ``R`` = run name inside the stage):
                                          conservation (``energy="drift"``)
     /S/R/events                          TextLog (blow-ups)
 
-:class:`NullRecorder` has the same methods and does nothing; ``enabled`` is False so
-callers can skip building colours and arrays altogether.
+:class:`NullRecorder` (lessons.app.recorder_null) has the same methods and does nothing;
+``enabled`` is False so callers can skip building colours and arrays altogether. A recording is
+read back by :func:`summarize` and :func:`run_status` (lessons.app.recorder_read).
 """
 from __future__ import annotations
 
@@ -44,10 +45,13 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from .blueprint import CAMERAS, ENERGY_KEY, PROGRESS_TICKS, RunPlan, RunView, StagePlan, lesson_blueprint
+from ..views import CAMERAS, RunView
+from .blueprint import ENERGY_KEY, PROGRESS_TICKS, RunPlan, StagePlan, lesson_blueprint
 from .outfile import OutputFile, OutputWriteError
 from .recorder_energies import RecorderEnergies
 from .recorder_geometry import RecorderGeometry
+from .recorder_null import NullRecorder
+from .recorder_read import run_status, summarize
 
 __all__ = ["Recorder", "NullRecorder", "check_writable", "summarize", "run_status", "OutputWriteError",
            "FRAMES_PER_RUN"]
@@ -83,75 +87,6 @@ def check_writable(path: str | os.PathLike) -> Path:
 
 
 # ------------------------------------------------------------------------------ recorders
-
-class NullRecorder:
-    """A recorder that records nothing and costs nothing."""
-
-    enabled = False
-    path = None
-
-    def __init__(self, *args, **kwargs):
-        pass
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
-        return False
-
-    def stage(self, index: int, title: str, narrative: str) -> None:
-        pass
-
-    def run(self, name: str, view: RunView | None = None, n_steps: int | None = None,
-            dt: float | None = None, draw_every: int | None = None) -> str:
-        return name
-
-    def wants_frame(self, step: int, sim_time: float) -> bool:
-        return False
-
-    def frame_spacing(self, n_steps: int) -> int:
-        return n_steps or 1
-
-    def colors(self, values, kind: str = "signed", quantity: str = "strain", scale: float | None = None):
-        return None
-
-    def set_time(self, step: int, sim_time: float) -> None:
-        pass
-
-    def points(self, *args, **kwargs) -> None:
-        pass
-
-    def rod(self, *args, **kwargs) -> None:
-        pass
-
-    def line_strips(self, *args, **kwargs) -> None:
-        pass
-
-    def springs(self, *args, **kwargs) -> None:
-        pass
-
-    def mesh(self, *args, **kwargs) -> None:
-        pass
-
-    def labels(self, *args, **kwargs) -> None:
-        pass
-
-    def energies(self, *args, **kwargs) -> None:
-        pass
-
-    def scalar_series(self, *args, **kwargs) -> None:
-        pass
-
-    def markdown(self, *args, **kwargs) -> None:
-        pass
-
-    def mark(self, *args, **kwargs) -> None:
-        pass
-
-    def close(self, *args, **kwargs) -> None:
-        pass
-
 
 class Recorder(RecorderGeometry, RecorderEnergies, NullRecorder):
     """Writes one lesson's recording to ``path`` (atomically, on :meth:`close`).
@@ -459,44 +394,3 @@ class Recorder(RecorderGeometry, RecorderEnergies, NullRecorder):
             if self.stages:
                 self.markdown("run_status", f"**This recording is partial**: {reason}. Stages completed: {done} "
                                             f"(asked: {', '.join(str(s) for s in status.get('stages_requested') or [])}).")
-
-
-
-def run_status(path: str | os.PathLike) -> dict | None:
-    """The recording property ``run`` written by :meth:`Recorder.close` (complete, exit_reason,
-    stages_requested, stages_completed, ...), or None if the file has none."""
-    from rerun.chunk import RrdReader
-
-    status = None
-    for chunk in RrdReader(str(path)).stream():
-        if str(chunk.entity_path) == "/__properties/run":
-            for row in chunk.to_record_batch().to_pylist():
-                status = {k: (v[0] if isinstance(v, list) and len(v) == 1 and k != "stages_requested"
-                              and k != "stages_completed" else v)
-                          for k, v in row.items() if not k.startswith("rerun.")}
-    return status
-
-
-def summarize(path: str | os.PathLike) -> dict[str, dict]:
-    """Read a recording back: per entity path, its chunk count, row count, whether it has
-    static data, and the sorted ``progress`` (and ``step``) values it was logged at. For tests
-    and for inspecting a recording without the viewer."""
-    from rerun.chunk import RrdReader
-
-    out: dict[str, dict] = {}
-    for chunk in RrdReader(str(path)).stream():
-        info = out.setdefault(chunk.entity_path, dict(chunks=0, rows=0, static_chunks=0, frames=[], steps=[],
-                                                      components=set()))
-        batch = chunk.to_record_batch()
-        info["chunks"] += 1
-        info["rows"] += batch.num_rows
-        info["static_chunks"] += int(chunk.is_static)
-        info["components"].update(n for n in batch.schema.names if ":" in n)
-        if "progress" in batch.schema.names:
-            info["frames"].extend(batch.column("progress").to_pylist())
-        if "step" in batch.schema.names:
-            info["steps"].extend(batch.column("step").to_pylist())
-    for info in out.values():
-        info["frames"].sort()
-        info["steps"].sort()
-    return out

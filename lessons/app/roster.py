@@ -40,9 +40,10 @@ from pathlib import Path
 
 from .._exercise import module_file
 from .._framework import Terminated
-from .arguments import UsageError, _Parser
+from .arguments import UsageError, Parser
 from .exercises import lessons_with_exercises
-from .grading import DEFAULT_MEMORY_GB, DEFAULT_TIME_LIMIT_S, PROJECT_ROOT, check_limits, check_stages
+from .grading import DEFAULT_MEMORY_GB, DEFAULT_TIME_LIMIT_S, check_limits, check_stages
+from .grading_remote import PROJECT_ROOT
 from .results import package_version
 
 STATE = ".grade-state.json"
@@ -50,8 +51,8 @@ MAX_FILE_BYTES = 1 << 20          # a student's module larger than this is not g
 STUDENT_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._@+-]{0,99}$")
 
 
-def _parser(ids: list[str]) -> _Parser:
-    p = _Parser(prog="python -m lessons grade", description=(
+def _parser(ids: list[str]) -> Parser:
+    p = Parser(prog="python -m lessons grade", description=(
         "Grade a class: ROSTER holds one folder per student (the folder's name is the student's id) with "
         "the lesson modules the student wrote. Every student and lesson is graded as 'python -m lessons "
         "check' grades one, in parallel on a Dask cluster, each in its own processes. Writes gradebook.csv, "

@@ -6,7 +6,7 @@ from __future__ import annotations
 import dataclasses
 
 from . import registry
-from .arguments import UsageError, _lesson_token, _run_parser, parse_stages
+from .arguments import UsageError, lesson_token, run_parser, parse_stages
 from .._framework import Stepping, validate_config
 
 
@@ -42,7 +42,7 @@ class _Pause:
 
 
 @dataclasses.dataclass
-class _RunPlan:
+class RunRequest:
     """What one ``run`` asks for, checked: its arguments as typed (``argv``) and parsed (``args``),
     the lessons to run, the stepping options, the stage numbers (None: every stage), the ``--pause``
     prompt (None without it) and each lesson's configuration by id."""
@@ -63,9 +63,9 @@ def _parse_lesson_argument(argv: list[str]):
     lessons_ = registry.all_lessons()
     ids = [l.id for l in lessons_]
     by_id = {l.id: l for l in lessons_}
-    lesson_arg = _lesson_token(argv, lessons_)
+    lesson_arg = lesson_token(argv, lessons_)
     lesson = by_id.get(lesson_arg)
-    parser = _run_parser(ids, lesson)
+    parser = run_parser(ids, lesson)
     if lesson_arg is None and not any(a in ("-h", "--help") for a in argv):
         raise UsageError("LESSON is required: one of " + ", ".join(ids) + ", or all")
     if lesson_arg is not None and lesson is None and lesson_arg != "all":
@@ -74,7 +74,7 @@ def _parse_lesson_argument(argv: list[str]):
     return args, (lessons_ if args.lesson == "all" else [lesson]), lesson
 
 
-def _plan_run(argv: list[str], stdin, out) -> _RunPlan:
+def plan_run(argv: list[str], stdin, out) -> RunRequest:
     """Parse and check ``run``'s arguments: the lesson, its parameter overrides, the stepping
     options, ``--stage`` and ``--pause``, and every chosen lesson's configuration. Bad input is a
     UsageError; nothing has run yet."""
@@ -93,7 +93,7 @@ def _plan_run(argv: list[str], stdin, out) -> _RunPlan:
                          "or with --stage N to run one stage")
     pause = _Pause(stdin, out) if args.pause else None
     configs = _validated_configs(chosen, lesson, overrides, stepping)
-    return _RunPlan(argv, args, chosen, stepping, stages, pause, configs)
+    return RunRequest(argv, args, chosen, stepping, stages, pause, configs)
 
 
 def _validated_configs(chosen: list, lesson, overrides: dict, stepping: Stepping) -> dict:

@@ -10,11 +10,10 @@ import numpy as np
 
 from engine import mesh as M
 from engine.model import Model
-from lessons.app.blueprint import RunView
+from lessons.views import RunView
 from engine.waves import cauchy_born_tensor
 
-from .. import _budget
-from .._budget import StageCost, check_stages
+from .._budget import StageCost, announce as announce_budget, check_stages
 from .._measure import edge_strain, vertex_strain
 from .._waves import square_domain_cells
 
@@ -100,4 +99,4 @@ def check_work(cfg) -> None:
 
 
 def announce(ctx, stage: int) -> None:
-    _budget.announce(ctx, stage_seconds(ctx.cfg, stage))
+    announce_budget(ctx, stage_seconds(ctx.cfg, stage))

@@ -14,7 +14,7 @@ import numpy as np
 
 from engine import mesh as M
 from engine.model import Model
-from lessons.app.blueprint import RunView
+from lessons.views import RunView
 from engine.waves import cauchy_born_tensor, christoffel, max_speed, relaxed_stiffness_2d, young_poisson
 from engine.theory.schemes import backward_euler_damping_rate as be_damping_rate
 

@@ -9,7 +9,8 @@ shape.
 
 Physics lives in :mod:`engine.energies.bending`, :mod:`engine.mesh`, :mod:`engine.statics`
 and the integrators; :mod:`.scene` builds the hinges, sheets and shell and draws them,
-:mod:`.stages` runs them and measures, and ``narrative.md`` narrates each stage.
+:mod:`.stages` (the energy itself: stages 1-3) and :mod:`.stages_structures` (the cloth and the
+shell: stages 4 and 5) run them and measure, and ``narrative.md`` narrates each stage.
 """
 from dataclasses import dataclass
 
@@ -18,7 +19,7 @@ from engine.constants import G
 from engine.errors import ParameterError
 
 from .._framework import Lesson, narrated_stages, param
-from . import scene, stages
+from . import scene, stages, stages_structures
 
 
 @dataclass
@@ -153,8 +154,8 @@ LESSON = Lesson(
         ("the hinge", stages.stage_hinge),
         ("curvature on a cylinder", stages.stage_curvature),
         ("energy against the continuum", stages.stage_continuum),
-        ("a hanging cloth folds", stages.stage_cloth),
-        ("a curved shell keeps its shape", stages.stage_shell),
+        ("a hanging cloth folds", stages_structures.stage_cloth),
+        ("a curved shell keeps its shape", stages_structures.stage_shell),
     ]),
     order=4,
 )

@@ -15,7 +15,7 @@ from engine import mesh as meshes
 from engine.energies.bending import BendingEnergy, bridson_u_kernel, theta_gradient_kernel
 from engine.fields import vec3_ndarray
 from engine.model import Model
-from lessons.app.blueprint import RunView
+from lessons.views import RunView
 
 from .._measure import random_rotation
 

@@ -5,14 +5,15 @@ The lecture notes remark that implicit methods pass information across the whole
 single step, so the CFL limit does not bind them. Physics lives in the engine (:mod:`engine.integrators.explicit`,
 :mod:`engine.integrators.implicit`, :mod:`engine.solvers`, :mod:`engine.scenes`,
 :mod:`engine.statics`); :mod:`.scene` builds the hanging cloth, draws it and estimates each
-stage's time, :mod:`.stages` runs it and measures, and ``narrative.md`` narrates each stage.
+stage's time, :mod:`.stages` (stage 1, the CFL limit) and :mod:`.stages_tradeoffs` (stages 2
+and 3, what implicit costs and buys) run it and measure, and ``narrative.md`` narrates each stage.
 """
 from dataclasses import dataclass
 
 from engine.errors import ParameterError
 
 from .._framework import Lesson, narrated_stages, param
-from . import scene, stages
+from . import scene, stages, stages_tradeoffs
 
 
 @dataclass
@@ -79,8 +80,8 @@ LESSON = Lesson(
     config=ExplicitImplicitConfig,
     stages=narrated_stages(__name__, [
         ("the CFL limit, and stepping far over it", stages.stage_cfl),
-        ("what implicit costs: numerical damping and first-order accuracy", stages.stage_accuracy),
-        ("what implicit buys: wall-clock per simulated second against stiffness", stages.stage_speed),
+        ("what implicit costs: numerical damping and first-order accuracy", stages_tradeoffs.stage_accuracy),
+        ("what implicit buys: wall-clock per simulated second against stiffness", stages_tradeoffs.stage_speed),
     ]),
     order=5,
     camera="front",  # every run is a cloth hanging in the x-z plane

@@ -10,8 +10,7 @@ import numpy as np
 
 from engine.fields import vec3_ndarray
 
-from .. import _budget
-from .._budget import StageCost, check_stages
+from .._budget import StageCost, announce as announce_budget, check_stages
 from .._measure import edge_strain, vertex_strain
 
 # ------------------------------------------------------------------ builders: modes, seed, integrator
@@ -32,10 +31,9 @@ class Watched:
     def __getattr__(self, name):  # name, implicit, solver, tol, begin, ... of the wrapped integrator
         return getattr(self.integrator, name)
 
-    def advance(self, stepper, state, dt):
-        model = stepper.model
-        self.integrator.advance(stepper, state, dt)
-        info = self.integrator.last_info
+    def advance(self, ctx, state, dt):
+        model = ctx.model
+        info = self.integrator.advance(ctx, state, dt)
         self.residuals.append(max(info.linear_residuals, default=0.0))
         self.iterations.append(sum(info.linear_iterations))
         self.solves += len(info.linear_iterations)
@@ -49,6 +47,7 @@ class Watched:
             noise = 64 * np.finfo(np.float64).eps * (abs(model.potential_energy(state.x)) + abs(model.elastic_energy(state.x)))
             converged = obj[-2] - obj[-1] <= noise
         self.converged.append(converged)
+        return info
 
 
 def free_modes(model, x, planar: bool = True):
@@ -101,7 +100,7 @@ def draw_cost_curves(rec, rows, frame_dt: float) -> None:
     """Stage 3's picture (one frame): the cost curves as a log-log chart drawn in the plane, wall-clock
     seconds per simulated second against E for symplectic Euler at its limit and backward Euler with
     pcg and with the direct solver at one frame, a tick per decade and each curve named at its end."""
-    from lessons.app.blueprint import RunView
+    from lessons.views import RunView
 
     direct = rows[0]["direct_name"]
     curves = {"explicit": ("symplectic Euler", [r["t_exp"] for r in rows]),
@@ -209,4 +208,4 @@ def check_work(cfg) -> None:
 
 
 def announce(ctx, stage: int) -> None:
-    _budget.announce(ctx, stage_seconds(ctx.cfg, stage), bound=True)
+    announce_budget(ctx, stage_seconds(ctx.cfg, stage), bound=True)

@@ -10,7 +10,7 @@ energy.
 import numpy as np
 import taichi as ti
 
-from engine.energies import membrane as Mb
+from engine.energies import triangle as Tri
 from engine.fields import scalar_array, vec3_array
 from .._exercise import TI_FUNC, Sampler, Task, agreement, central_difference, deviation, factor_text, \
     first_bad, matches, ratio, substitute
@@ -162,11 +162,11 @@ def check_stress(student) -> list:
 
 
 def install_deformation_gradient(func) -> None:
-    substitute(Mb.deformation_gradient, func)
+    substitute(Tri.deformation_gradient, func)
 
 
 def install_stress(func) -> None:
-    substitute(Mb.baraff_witkin_stress, func)
+    substitute(Tri.baraff_witkin_stress, func)
 
 
 LABELS = {   # the equations this exercise cites, defined in its template (what, not how)

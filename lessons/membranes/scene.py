@@ -14,10 +14,9 @@ from engine import mesh as M
 from engine.energies.membrane import MembraneEnergy, lame
 from engine.model import Model
 from engine.waves import bloch_modes
-from lessons.app.blueprint import RunView
+from lessons.views import RunView
 
-from .. import _budget
-from .._budget import StageCost, check_stages
+from .._budget import StageCost, announce as announce_budget, check_stages
 from .._measure import stretch_strip
 from ..area_springs.scene import area_model
 
@@ -169,7 +168,7 @@ def draw_patch(rec, name: str, label: str, m3: M.Mesh, x, energy) -> None:
 
 def triangle_stretch(energy, x: np.ndarray) -> np.ndarray:
     """(m,) each triangle's larger stretch along the warp and the weft, max(|w_u|, |w_v|) - 1 (the
-    lengths of F's columns, (F1) of engine.energies.membrane), from numpy positions x."""
+    lengths of F's columns, (F1) of engine.energies.triangle), from numpy positions x."""
     T, Di = energy.triangles_np, energy.Dinv_np
     d1, d2 = x[T[:, 1]] - x[T[:, 0]], x[T[:, 2]] - x[T[:, 0]]
     wu = d1 * Di[:, 0, 0, None] + d2 * Di[:, 1, 0, None]
@@ -255,7 +254,7 @@ def check_work(cfg) -> None:
 
 
 def announce(ctx, stage: int) -> None:
-    _budget.announce(ctx, stage_seconds(ctx.cfg, stage))
+    announce_budget(ctx, stage_seconds(ctx.cfg, stage))
 
 
 # ------------------------------------------------------------------ the damped wave (stage 5)

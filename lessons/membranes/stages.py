@@ -11,7 +11,7 @@ from engine.energies.membrane import MembraneEnergy, lame
 from engine.stability import stable_dt_estimate
 from engine.theory.schemes import backward_euler_damped_sequence, velocity_verlet_damped_rates
 from engine.waves import cauchy_born_tensor, christoffel
-from lessons.app.blueprint import RunView
+from lessons.views import RunView
 
 from .._framework import Experiment
 from .._scene import simulate

@@ -9,8 +9,8 @@ import taichi as ti
 
 from engine.energies import axial
 from engine.fields import scalar_array
-from .._exercise import TI_FUNC, Sampler, Task, agreement, central_difference, deviation, factor_text, \
-    first_bad, matches, ratio, substitute
+from .._exercise import TI_FUNC, Sampler, Task, agreement, central_difference, deviation, explain_failure, \
+    substitute
 
 
 def _force_call(func):
@@ -89,9 +89,12 @@ def check_rod_force(student) -> list:
     tol = 1e-9
     reason = ""
     if not dev <= tol:
-        i = first_bad(got, ref, tol, scale)
-        r = factor_text(ratio(got, ref))
-        named = next((text for wrong, text in [
+        k = int(np.argmax(np.abs(at_rest)))   # where the rod at rest is pulled hardest
+        at_rest_text = (f"rod_force is not zero for the rod at rest (node {k}: {at_rest[k]:.3g} N)" +
+                        (": at a free end the missing segment comes with E = 0 and h = 1 and must give no force"
+                         if k in (0, len(x) - 1) else
+                         ": a segment's strain is (its length)/h - 1 and its force E times that"))
+        mistakes = [
             (_stencil(x, h, E, swap_h="both"), "divides each segment's length by the other segment's rest "
                                                "length: the right segment's strain is (x_right - x)/h_right - 1"),
             (_stencil(x, h, E, swap_h="right"), "divides the right segment's length by h_left: its strain is "
@@ -112,25 +115,15 @@ def check_rod_force(student) -> list:
                                                                       "length pulls with no force"),
             (_stencil(x, h, E) / _mean_h(h), "divides by the node's mean segment length: that is a force per "
                                              "length; the node's force is the difference of the two tensions"),
-        ] if matches(got, wrong, scale)), "")
-        if not np.all(np.isfinite(got)):
-            reason = f"rod_force returns NaN or inf at node {i}" + (" (a free end: E = 0, h = 1 there)"
-                                                                    if i in (0, len(x) - 1) else "")
-        elif r == "minus":
-            reason = "rod_force has the wrong sign: it is +dW/dx; a stretched segment pulls its nodes together"
-        elif named:
-            reason = f"rod_force {named}"
-        elif np.abs(at_rest).max() > 1e-9 * scale.max():
-            k = int(np.argmax(np.abs(at_rest)))
-            reason = (f"rod_force is not zero for the rod at rest (node {k}: {at_rest[k]:.3g} N)" +
-                      (": at a free end the missing segment comes with E = 0 and h = 1 and must give no force"
-                       if k in (0, len(x) - 1) else
-                       ": a segment's strain is (its length)/h - 1 and its force E times that"))
-        elif r:
-            reason = f"rod_force is {r} -dW/dx of (R1)"
-        else:
-            reason = (f"rod_force is not -dW/dx: {got[i]:.6g} N instead of {ref[i]:.6g} N at node {i} of {len(x)} "
-                      f"(ends included)")
+        ]
+        reason = explain_failure(
+            "rod_force", got, ref, tol, scale, of="-dW/dx of (R1)",
+            where=lambda i: f"node {i}" + (" (a free end: E = 0, h = 1 there)" if i in (0, len(x) - 1) else ""),
+            sign="it is +dW/dx; a stretched segment pulls its nodes together",
+            mistakes=mistakes,
+            after_mistakes=[(lambda: np.abs(at_rest).max() > 1e-9 * scale.max(), at_rest_text)],
+            otherwise=lambda i: (f"rod_force is not -dW/dx: {got[i]:.6g} N instead of {ref[i]:.6g} N at node {i} of "
+                                 f"{len(x)} (ends included)"))
     return [agreement(f"rod_force = -dW/dx of (R1), a random {len(x)}-node rod, h from 1 mm to 1 m (max deviation / "
                       f"max E)", "ex-rod-force", dev, tol, reason)]
 

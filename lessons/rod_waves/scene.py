@@ -13,7 +13,7 @@ import math
 import numpy as np
 
 from engine.scenes import Rod
-from lessons.app.blueprint import RunView
+from lessons.views import RunView
 
 from .._budget import ANNOUNCE_S, WORK_BUDGET_S, StageCost, check_stages, time_text
 from .._measure import rod_node_strain

@@ -307,7 +307,7 @@ def _top_mode_growth(ctx, rod):
     # 1e-12 m at the default amplitude (never less: far above the positions' round-off, 1e-16 m, and small
     # enough to stay linear while its energy grows ~1e10 times over the 40 steps)
     top = rod.new_state(1e-9 * max(ctx.cfg.amplitude, 1e-3) * (-1.0) ** np.arange(rod.n))
-    K, W = rod.run(top, 1.01 * h / c, 40, "symplectic-euler")
+    K, W = Stepper(rod, "symplectic-euler").energies(top, 1.01 * h / c, 40)
     ctx.note_integrator("top_mode_nu1.01", "symplectic-euler", fixed=True)
     # Starting from rest excites both roots; the 1/lambda part has died out by step 30.
     return Experiment("top mode at nu = 1.01: energy factor per step = lambda^2",
@@ -338,7 +338,7 @@ def _mode_growth(ctx, rod, j, nu, method, n_steps):
     shape = np.sin(j * np.pi * rod.p)
     st = rod.new_state(1e-3 * shape)
     E0 = rod.energy(st.x)
-    K, W = rod.run(st, dt, n_steps, method)
+    K, W = Stepper(rod, method).energies(st, dt, n_steps)
     E = np.concatenate([[E0], K + W])
     w = 2 * c / h * np.sin(j * np.pi * h / 2)  # discrete dispersion of the pinned rod
     return geometric_growth(E, n_steps), w * dt, E

@@ -3,15 +3,16 @@ conservation, stiffness from the speed of sound, a hanging rod.
 
 Physics lives in the engine (:mod:`engine.energies.springs`, :mod:`engine.model`,
 :mod:`engine.integrators`, :class:`engine.scenes.Rod`, :mod:`engine.statics`); :mod:`.scene`
-builds the scenes, draws them and estimates each stage's cost, :mod:`.stages` runs them and
-measures, and ``narrative.md`` narrates each stage.
+builds the scenes, draws them and estimates each stage's cost, :mod:`.stages` (the stages that
+do not step in time: 1, 3 and 5) and :mod:`.stages_dynamics` (those that do: 2 and 4) run them
+and measure, and ``narrative.md`` narrates each stage.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 from .._framework import Lesson, narrated_stages, param
-from . import scene, stages
+from . import scene, stages, stages_dynamics
 
 
 @dataclass
@@ -49,9 +50,9 @@ LESSON = Lesson(
     config=SpringsConfig,
     stages=narrated_stages(__name__, [
         ("one spring: force = -dW/dx", stages.stage_one_spring),
-        ("energy conservation", stages.stage_conservation),
+        ("energy conservation", stages_dynamics.stage_conservation),
         ("discretise the energy, not the PDE", stages.stage_variational),
-        ("stiffness from the speed of sound", stages.stage_sound),
+        ("stiffness from the speed of sound", stages_dynamics.stage_sound),
         ("a hanging rod", stages.stage_hanging),
     ]),
     order=2,

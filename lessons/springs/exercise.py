@@ -15,7 +15,7 @@ import taichi as ti
 from engine.energies import springs as S
 from engine.integrators import kernels as K
 from .._exercise import TI_FUNC, Sampler, StudentError, Task, agreement, central_difference, deviation, \
-    factor_text, first_bad, matches, ratio, substitute
+    explain_failure, matches, substitute
 
 from engine.fields import mat3_array as mat3s, scalar_array as floats, vec3_array as vec3s
 
@@ -76,11 +76,6 @@ def _where(d, L, i: int) -> str:
     return f"spring {i} (l = {np.linalg.norm(d[i]):.3g} m, L = {L[i]:.3g} m)"
 
 
-def _named(got, candidates, scale) -> str:
-    """The first known mistake whose results the student's are, or ''."""
-    return next((text for wrong, text in candidates if matches(got, wrong, scale)), "")
-
-
 # ------------------------------------------------------------------ the checks
 
 def check_energy(student) -> list:
@@ -92,28 +87,23 @@ def check_energy(student) -> list:
     tol = 1e-10
     reason = ""
     if not dev <= tol:
-        i = first_bad(got, ref, tol, scale=c)
-        r = factor_text(ratio(got, ref))
-        named = _named(got, [
+        mistakes = [
             (0.5 * c * (l - L) ** 2, "uses the stretch l - L as the strain: the strain is l/L - 1, "
                                      "dimensionless"),
             (0.5 * c * ((l / L) ** 2 - 1.0) ** 2, "uses (l/L)^2 - 1 as the strain: (S1)'s strain is l/L - 1"),
             (0.5 * c * (l / L - 1.0) ** 2 * L, "is L times (S1), 1/2 c (l/L - 1)^2 L: c = k L already holds "
                                                "the L of the notes' 1/2 k (l/L - 1)^2 L"),
             (0.5 * c * (l / L - 1.0) ** 2 / L, "divides by L: (S1) is 1/2 c (l/L - 1)^2 with c in J"),
-        ], c)
-        if not np.all(np.isfinite(got)):
-            reason = f"spring_energy returns NaN or inf at {_where(d, L, i)}"
-        elif np.any(np.abs(got[:6]) > 1e-12 * c[:6]):
-            reason = ("spring_energy is not zero at the rest length (l = L): the strain is l/L - 1; "
-                      "is the rest length used?")
-        elif named:
-            reason = f"spring_energy {named}"
-        elif r:
-            reason = f"spring_energy is {r} 1/2 c (l/L - 1)^2" + (": the 1/2 is missing" if r == "twice" else "")
-        else:
-            reason = (f"spring_energy differs from 1/2 c (l/L - 1)^2 at {_where(d, L, i)}: "
-                      f"{got[i]:.6g} J instead of {ref[i]:.6g} J")
+        ]
+        reason = explain_failure(
+            "spring_energy", got, ref, tol, scale=c, of="1/2 c (l/L - 1)^2", where=lambda i: _where(d, L, i),
+            checks=[(lambda: np.any(np.abs(got[:6]) > 1e-12 * c[:6]),
+                     "spring_energy is not zero at the rest length (l = L): the strain is l/L - 1; "
+                     "is the rest length used?")],
+            mistakes=mistakes,
+            factor_notes={"twice": ": the 1/2 is missing"},
+            otherwise=lambda i: (f"spring_energy differs from 1/2 c (l/L - 1)^2 at {_where(d, L, i)}: "
+                                 f"{got[i]:.6g} J instead of {ref[i]:.6g} J"))
     return [agreement(f"spring_energy = 1/2 c (l/L - 1)^2 (S1), {len(d)} springs, L from 1 mm to 100 m "
                       f"(max deviation / c)", "ex-spring-energy", dev, tol, reason)]
 
@@ -133,10 +123,8 @@ def check_force(student) -> list:
     at_zero = student.via(_spring_call, "v")(np.zeros((3, 3)), L[:3], c[:3])
     reason = ""
     if not dev <= tol:
-        i = first_bad(got, ref, tol, scale)
-        r = factor_text(ratio(got, ref))
         strain = (l / L - 1.0)[:, None]
-        named = _named(got, [
+        mistakes = [
             (-(c / L)[:, None] * strain * d, "points along d, not along the unit vector d/l: the force is "
                                              "-(c/L)(l/L - 1) d/l"),
             (-c[:, None] * strain * n, "is missing 1/L: dW/dl = (c/L)(l/L - 1), the chain rule through l/L"),
@@ -144,20 +132,14 @@ def check_force(student) -> list:
             (-(c / L)[:, None] * (l - L)[:, None] * n, "uses l - L as the strain: it is l/L - 1"),
             (-(c / L)[:, None] * strain * d / L[:, None], "divides d by L, not by l: the direction is the unit "
                                                           "vector d/l"),
-        ], scale)
-        if not np.all(np.isfinite(got)):
-            reason = f"spring_force returns NaN or inf at {_where(d, L, i)}"
-        elif np.any(np.abs(got[:6]) > 1e-9 * scale[:6, None]):
-            reason = "spring_force is not zero at the rest length (l = L): is the rest length used?"
-        elif r == "minus":
-            reason = ("spring_force has the wrong sign: it is +dW/dx, so a stretched spring would push its "
-                      "ends apart; the force is minus the gradient")
-        elif named:
-            reason = f"spring_force {named}"
-        elif r:
-            reason = f"spring_force is {r} -dW/dx of (S1)"
-        else:
-            reason = f"force is not -dW/dx: deviation {dev:.2g} of c/L at {_where(d, L, i)}"
+        ]
+        reason = explain_failure(
+            "spring_force", got, ref, tol, scale, of="-dW/dx of (S1)", where=lambda i: _where(d, L, i),
+            checks=[(lambda: np.any(np.abs(got[:6]) > 1e-9 * scale[:6, None]),
+                     "spring_force is not zero at the rest length (l = L): is the rest length used?")],
+            sign="it is +dW/dx, so a stretched spring would push its ends apart; the force is minus the gradient",
+            mistakes=mistakes,
+            otherwise=lambda i: f"force is not -dW/dx: deviation {dev:.2g} of c/L at {_where(d, L, i)}")
     zero_dev = deviation(at_zero, np.zeros((3, 3)), scale=(c / L)[:3])
     zero_reason = "" if zero_dev <= 1e-12 else (
         "spring_force returns NaN or inf at l = 0 (d/l is 0/0): the template asks for the zero vector there"
@@ -180,15 +162,13 @@ def check_hessian(student) -> list:
     tol = 1e-6
     reason = ""
     if not dev <= tol:
-        i = first_bad(got, ref, tol, scale)
-        r = factor_text(ratio(got, ref))
         l = np.linalg.norm(d, axis=1)
         n = d / l[:, None]
         nnT = np.einsum("ni,nj->nij", n, n)
         along = (c / L ** 2)[:, None, None] * nnT
         across = (c / L ** 2 * (1.0 - L / l))[:, None, None] * (np.eye(3) - nnT)
         clipped = along + np.where((l < L)[:, None, None], 0.0, across)
-        named = _named(got, [
+        mistakes = [
             (along, "has only the part along the spring: the transverse term (c/L^2)(1 - L/l)(I - n n^T) is "
                     "missing"),
             (clipped, "clips the transverse term of compressed springs: write the exact block, the engine "
@@ -203,19 +183,14 @@ def check_hessian(student) -> list:
              "puts the transverse term on I: it acts across the spring only, (1 - L/l)(I - n n^T)"),
             ((along + across) * L[:, None, None], "is L times the block: the prefactor is c/L^2 (c/L from "
                                                   "dW/dl, 1/L more from the strain)"),
-        ], scale)
-        if not np.all(np.isfinite(got)):
-            reason = f"spring_hessian returns NaN or inf at {_where(d, L, i)}"
-        elif np.abs(got - np.transpose(got, (0, 2, 1))).max(axis=(1, 2)).max(initial=0) > 1e-9 * scale.max():
-            reason = "spring_hessian is not symmetric: a Hessian block K = d^2W/dd^2 is"
-        elif r == "minus":
-            reason = "spring_hessian has the wrong sign: it is df/dx; the Hessian is -df/dx = d^2W/dx^2"
-        elif named:
-            reason = f"spring_hessian {named}"
-        elif r:
-            reason = f"spring_hessian is {r} d^2W/dx^2 of (S1)"
-        else:
-            reason = f"Hessian is not -df/dx: deviation {dev:.2g} of c/L^2 at {_where(d, L, i)}"
+        ]
+        reason = explain_failure(
+            "spring_hessian", got, ref, tol, scale, of="d^2W/dx^2 of (S1)", where=lambda i: _where(d, L, i),
+            checks=[(lambda: np.abs(got - np.transpose(got, (0, 2, 1))).max(axis=(1, 2)).max(initial=0)
+                     > 1e-9 * scale.max(), "spring_hessian is not symmetric: a Hessian block K = d^2W/dd^2 is")],
+            sign="it is df/dx; the Hessian is -df/dx = d^2W/dx^2",
+            mistakes=mistakes,
+            otherwise=lambda i: f"Hessian is not -df/dx: deviation {dev:.2g} of c/L^2 at {_where(d, L, i)}")
     return [agreement(f"spring_hessian = -df/dx by finite differences of the force (S3), {len(d)} springs "
                       f"(max deviation / (c/L^2))", "ex-spring-hessian", dev, tol, reason)]
 

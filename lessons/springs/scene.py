@@ -4,7 +4,7 @@ Three parts, in this order: the builders (the chains, the one spring, the tetrah
 varying rod of stage 3 on its three kinds of grid, the hanging rod), the drawing (the spring network
 coloured by strain and each stage's views), and the budget (each stage's time on the reference CPU,
 ``stage_seconds`` and ``BUDGET``, and ``check_work``, which refuses a configuration up front).
-The stages that use them are in stages.py.
+The stages that use them are in stages.py and stages_dynamics.py.
 """
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ from engine.errors import ParameterError
 from engine.fields import vec3_ndarray
 from engine.model import Model
 from engine.scenes import Rod
-from lessons.app.blueprint import RunView
+from lessons.views import RunView
 
 from .._budget import StageCost, check_stages
 from .._measure import edge_strain

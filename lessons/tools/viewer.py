@@ -51,7 +51,7 @@ from pathlib import Path
 from typing import NamedTuple
 
 from .screenshots import drawn_fraction
-from .viewer_processes import _SETTLE_SIZE, ViewerProcesses, _PortTaken, _Procs, _stop
+from .viewer_processes import SETTLE_SIZE, ViewerProcesses, PortTaken, Procs, stop_process
 from .viewer_requirements import ViewerUnavailable, check_available
 
 SCENE_CLASSES = ("3D", "2D")
@@ -118,7 +118,7 @@ class HeadlessViewer(ViewerProcesses):
         self.port: int | None = None
         self.open_seconds: float | None = None  # how long start() took
         self.settled: bool | None = None  # whether the last settle() saw two identical frames
-        self._procs = _Procs()
+        self._procs = Procs()
         self._scratch: Path | None = None
 
     # -- life cycle --
@@ -143,8 +143,8 @@ class HeadlessViewer(ViewerProcesses):
                     self._start_viewer()
                     self._wait_loaded(t0 + self.timeout)
                     break
-                except _PortTaken:
-                    _stop(self._procs.viewer)
+                except PortTaken:
+                    stop_process(self._procs.viewer)
                     self._procs.viewer = None
                     if attempt == 2:
                         raise ViewerUnavailable("the Rerun viewer could not get a free port (3 tries)")
@@ -156,11 +156,11 @@ class HeadlessViewer(ViewerProcesses):
     def close(self) -> None:
         """Stop the viewer and Xvfb (reaping both) and remove the scratch directory; idempotent."""
         self.client = None
-        procs, self._procs = self._procs, _Procs()
+        procs, self._procs = self._procs, Procs()
         try:
-            _stop(procs.viewer)
+            stop_process(procs.viewer)
         finally:
-            _stop(procs.xvfb)
+            stop_process(procs.xvfb)
             if self._scratch is not None:
                 shutil.rmtree(self._scratch, ignore_errors=True)
                 self._scratch = None
@@ -428,7 +428,7 @@ class HeadlessViewer(ViewerProcesses):
         recording's chunks as the views need them, so the first frames after opening, after
         switching tabs or after moving the time cursor can lack data. While playing, the
         picture never settles. Returns whether it settled (also kept as ``self.settled``)."""
-        take = lambda: self.client.take_screenshot(max_size=_SETTLE_SIZE)  # noqa: E731
+        take = lambda: self.client.take_screenshot(max_size=SETTLE_SIZE)  # noqa: E731
         _, self.settled = _steady(take, time.monotonic() + timeout, tries)
         return self.settled
 

@@ -22,7 +22,7 @@ from pathlib import Path
 from .viewer_requirements import APT_INSTALL, ViewerUnavailable, find_rerun
 
 _POINTER_MARGIN = 64  # pixels of X screen right of and below the window, where the pointer waits
-_SETTLE_SIZE = 480  # longest side of the pictures settle() compares (cheaper than full size)
+SETTLE_SIZE = 480  # longest side of the pictures settle() compares (cheaper than full size)
 
 
 def unreadable_recording(path: str | os.PathLike) -> str | None:
@@ -90,7 +90,7 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def _stop(proc: subprocess.Popen | None, grace: float = 5.0) -> None:
+def stop_process(proc: subprocess.Popen | None, grace: float = 5.0) -> None:
     """SIGTERM the process's group (it was started in a session of its own), then SIGKILL, and reap it."""
     if proc is None:
         return
@@ -170,13 +170,13 @@ def _tail(path: Path, lines: int = 15) -> str:
 
 
 @dataclass
-class _Procs:
+class Procs:
     xvfb: subprocess.Popen | None = None
     viewer: subprocess.Popen | None = None
 
 
 
-class _PortTaken(Exception):
+class PortTaken(Exception):
     pass
 
 
@@ -273,7 +273,7 @@ class ViewerProcesses:
             # Someone took the port between _free_port() and the viewer binding it: the viewer
             # then streams the recording to whatever listens there and exits 0.
             if re.search(r"already in use|already listening at this address|Another viewer is already running", log):
-                raise _PortTaken()
+                raise PortTaken()
             hint = ""
             if re.search(r"No graphics adapter|Adapter selection failed|enumerate_adapters|ERROR_INCOMPATIBLE_DRIVER",
                          log):
@@ -318,5 +318,5 @@ class ViewerProcesses:
                 last_error = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
             time.sleep(0.25)
         self._viewer_died()
-        self.client.take_screenshot(max_size=_SETTLE_SIZE)  # returns once a frame is painted
+        self.client.take_screenshot(max_size=SETTLE_SIZE)  # returns once a frame is painted
         self._viewer_died()

@@ -40,7 +40,7 @@ from hypothesis import HealthCheck, example, given, settings, strategies as st
 
 from engine import runtime
 from lessons.app import cli, registry
-from lessons._framework import Stepping, _field_type
+from lessons._framework import Stepping, field_type
 from lessons.app.results import result_rows
 from tests.helpers import ROOT
 
@@ -55,7 +55,7 @@ def fields_of(config_cls) -> dict:
     out = {}
     for f in dataclasses.fields(config_cls):
         if f.metadata:
-            out["--" + f.name.replace("_", "-")] = (f.name, _field_type(f), f.metadata)
+            out["--" + f.name.replace("_", "-")] = (f.name, field_type(f), f.metadata)
     return out
 
 

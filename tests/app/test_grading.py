@@ -380,7 +380,7 @@ def test_an_interrupted_check_writes_its_partial_results(tmp_path):
 
 
 def test_malformed_stage_rows_are_a_failed_claim_never_an_internal_error():
-    from lessons.app.grading import printable, validated_rows
+    from lessons.app.grading_remote import printable, validated_rows
     assert printable("a\x1b[2Kb\nc") == "a\\x1b[2Kb\\nc"   # terminal escapes from a student's message are shown, not run
     good = {"id": "a-claim", "claim": "c", "theory": 1.0, "measured": 1.0, "tolerance": 0.1, "comparison": "rel",
             "passed": False}

@@ -9,7 +9,7 @@ import time
 
 import pytest
 
-from lessons.app.recorder import run_status, summarize
+from lessons.app.recorder_read import run_status, summarize
 from lessons.app.results import read_results
 from tests.helpers import ROOT
 
@@ -60,8 +60,8 @@ def test_a_signal_whose_exception_was_swallowed_stops_the_run_at_the_next_chunk(
     """A signal that lands inside a __del__ (e.g. a Taichi ndarray being freed) has its exception
     printed and dropped by Python; the handler also notes it, and the run loop raises it at the
     next chunk instead of running on."""
-    from lessons.app.recorder import NullRecorder
-    from lessons._framework import Terminated, _pending_signal, note_signal
+    from lessons.app.recorder_null import NullRecorder
+    from lessons._framework import Terminated, pending_signal, note_signal
     from lessons._scene import _recorded_run
 
     class Ctx:
@@ -85,5 +85,5 @@ def test_a_signal_whose_exception_was_swallowed_stops_the_run_at_the_next_chunk(
         with pytest.raises(expected):
             _recorded_run(Ctx(), "run", 1e-3, 1000, 10, advance, state=None)
     finally:
-        _pending_signal.clear()
+        pending_signal.clear()
     assert chunks == [0, 10, 20]

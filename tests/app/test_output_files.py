@@ -12,7 +12,7 @@ import pytest
 
 from engine import runtime
 from lessons.app.outfile import OutputFile
-from lessons.app.recorder import run_status, summarize
+from lessons.app.recorder_read import run_status, summarize
 from lessons.app.results import read_results, result_rows
 from tests.helpers import ROOT, main_in
 
@@ -309,8 +309,8 @@ def test_a_second_signal_during_clean_up_is_noted_not_raised():
     s.cleaning = True
     s.handler(signal.SIGTERM, None)
     assert s.received == [signal.SIGINT, signal.SIGINT, signal.SIGTERM] and s.first == signal.SIGINT
-    from lessons._framework import _pending_signal
-    _pending_signal.clear()
+    from lessons._framework import pending_signal
+    pending_signal.clear()
 
 
 def test_a_closed_stdout_pipe_ends_the_run_quietly(tmp_path):

@@ -7,10 +7,13 @@ import time
 import numpy as np
 import pytest
 
-from lessons.app.blueprint import PROGRESS_TICKS, RunView
-from lessons.app.recorder import FRAMES_PER_RUN, MIN_FRAMES_PER_RUN, NullRecorder, Recorder, check_writable, summarize
+from lessons.app.blueprint import PROGRESS_TICKS
+from lessons.views import RunView
+from lessons.app.recorder import FRAMES_PER_RUN, MIN_FRAMES_PER_RUN, Recorder, check_writable
 from lessons.app.recorder_energies import ENERGY_SAMPLES
 from lessons.app.recorder_geometry import strain_colors
+from lessons.app.recorder_null import NullRecorder
+from lessons.app.recorder_read import summarize
 from lessons.rod_waves import LESSON
 from tests.helpers import ROOT, run_stage
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from lessons.app.blueprint import FOV_Y
-from lessons.app.recorder import summarize
+from lessons.app.recorder_read import summarize
 from lessons.app import registry
 
 SIZE_BUDGET = 20_000_000  # bytes, every default recording

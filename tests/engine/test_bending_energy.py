@@ -13,6 +13,7 @@ import pytest
 
 from engine import mesh as meshes
 from engine.energies import bending as bm
+from engine.energies import bending_kernels as bk
 from engine.energies.bending import BendingEnergy, BendingError, VARIANTS
 from engine.energies.base import Energy
 from engine.errors import ModelError
@@ -316,9 +317,9 @@ def test_force_args_drive_the_force_funcs():
     def fused_forces(x: vec3_array, hinges: int_array2, k: scalar_array, theta_bar: scalar_array, mode: ti.i32,
                      fh: vec3_array2, offsets: int_array, entries: int_array, f: vec3_array):
         for h in range(hinges.shape[0]):
-            bm.hinge_force_vectors(x, hinges, k, theta_bar, mode, fh, h)
+            bk.hinge_force_vectors(x, hinges, k, theta_bar, mode, fh, h)
         for v in range(f.shape[0]):
-            f[v] += bm.hinge_gather(fh, offsets, entries, v)
+            f[v] += bk.hinge_gather(fh, offsets, entries, v)
 
     rng = np.random.default_rng(19)
     X, T = bumpy_grid(6, 5, rng, amp=0.25)
@@ -636,7 +637,7 @@ def test_per_vertex_gather_equals_numpy_scatter_and_is_deterministic():
     E.add_forces(xs, f)
     got = f.to_numpy()
     assert np.abs(got - ref).max() <= 1e-15 * np.abs(ref).max()
-    assert np.array_equal(bm.scatter_hinge_vectors_numpy(len(X), H, fh), ref)
+    assert np.array_equal(bk.scatter_hinge_vectors_numpy(len(X), H, fh), ref)
     f2 = vec3_ndarray(len(X))
     E.add_forces(xs, f2)
     assert np.array_equal(f2.to_numpy(), got)  # bitwise reproducible

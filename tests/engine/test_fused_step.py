@@ -1,11 +1,13 @@
-"""The one-launch cloth step (engine.integrators.kernels.cloth_step) does the generic path's
+"""The one-launch cloth step (engine.integrators.cloth_kernels.cloth_step) does the generic path's
 arithmetic in another order of loops but the same order of terms per vertex, so the states agree
 bit for bit: symplectic Euler and velocity Verlet, with and without bending, for any number of
 vertex blocks, launched directly or through Taichi's own call; and the two-pass membrane step likewise."""
 import numpy as np
 import pytest
 
-from engine.integrators import kernels as K
+from engine.integrators import cloth_kernels as C
+from engine.integrators import launch
+from engine.integrators.launch import BoundKernel
 from engine.integrators.explicit import SymplecticEuler, VelocityVerlet, cloth_blocks, cloth_plan, cloth_stepper
 from engine.integrators.stepper import Stepper
 from engine.model import Model
@@ -22,9 +24,9 @@ def run(model, v0, dt, n, method, fused):
     return s.x, s.v, st.t
 
 
-def one_launch_plan(model):
-    """The one-launch step a Stepper plans for symplectic Euler on ``model`` (None: generic path)."""
-    return Stepper(model, SymplecticEuler()).fast
+def one_launch_plan(model, method="symplectic-euler"):
+    """The fast step (FastStep) a Stepper plans for ``method`` on ``model`` (None: generic path)."""
+    return Stepper(model, INTEGRATORS[method]()).fast
 
 
 def start(model, seed=3, scale=0.05):
@@ -59,30 +61,28 @@ def test_any_number_of_blocks_gives_the_same_bits(method):
     for nb in (1, 2, 5, 9):
         I, F, n_boundary = cloth_plan(model, nb)
         assert (n_boundary > 0) == (nb > 1)
-        step = cloth_stepper(model, nb)
+        step = cloth_stepper(model, method, nb)
         st = model.make_state(None, v0)
-        if method == "velocity-verlet":
-            step(st, 0.0, "velocity-verlet-begin")
+        step.begin(st)
         for _ in range(40):
-            step(st, dt, method)
+            step.step(st, dt)
         s = st.numpy()
         assert np.array_equal(s.x, x_ref) and np.array_equal(s.v, v_ref), nb
 
 
 @pytest.mark.parametrize("method", list(INTEGRATORS))
 def test_many_steps_in_one_launch_give_the_same_bits(method):
-    """step(n) runs all n steps in one launch (kernels.cloth_steps: each block stays on its thread and
+    """step(n) runs all n steps in one launch (cloth_kernels.cloth_steps: each block stays on its thread and
     the threads meet at a barrier where a step's loop would end): the same state as n launches of
     one step and as the generic path. 24 x 24 vertices: two blocks on a two-thread runtime."""
     from engine import runtime
     model = cloth(24, B=1e-3).model
     v0 = start(model, seed=13)
     dt = 0.5 * stable_dt_estimate(model)
-    one = one_launch_plan(model)
+    one = one_launch_plan(model, method)
     st = model.make_state(None, v0)
-    if method == "velocity-verlet":
-        one(st, 0.0, "velocity-verlet-begin")
-    one(st, dt, method, 25)
+    one.begin(st)
+    one.step(st, dt, 25)
     x_ref, v_ref, _ = run(model, v0, dt, 25, method, False)
     s = st.numpy()
     assert np.array_equal(s.x, x_ref) and np.array_equal(s.v, v_ref)
@@ -99,14 +99,14 @@ def test_many_steps_kernel_with_more_blocks_than_threads():
     v0 = start(model, seed=19)
     dt = 0.5 * stable_dt_estimate(model)
     I, F, _ = cloth_plan(model, runtime.current().threads + 3)
-    w, sync = vec3_ndarray(4 * model.n), int_ndarray(np.zeros(K.SYNC_SIZE))
-    steps = K.BoundKernel(K.cloth_steps, (w, I, F, sync, K.SPIN_LIMIT), (K.CLOTH_SE, True))
+    w, sync = vec3_ndarray(4 * model.n), int_ndarray(np.zeros(C.SYNC_SIZE))
+    steps = BoundKernel(C.cloth_steps, (w, I, F, sync, C.SPIN_LIMIT), (C.CLOTH_SE, True))
     st = model.make_state(None, v0)
     assert steps(st.x, st.v, dt, 20) == 0
     x_ref, v_ref, _ = run(model, v0, dt, 20, "symplectic-euler", False)
     s = st.numpy()
     assert np.array_equal(s.x, x_ref) and np.array_equal(s.v, v_ref)
-    impatient = K.BoundKernel(K.cloth_steps, (w, I, F, sync, 0), (K.CLOTH_SE, True))
+    impatient = BoundKernel(C.cloth_steps, (w, I, F, sync, 0), (C.CLOTH_SE, True))
     assert impatient(st.x, st.v, dt, 3) == 1
 
 
@@ -118,7 +118,7 @@ def test_direct_launch_is_taichis_launch(monkeypatch, scene, method):
     v0 = start(model, seed=7)
     dt = 0.5 * stable_dt_estimate(model)
     xa, va, _ = run(model, v0, dt, 30, method, True)
-    monkeypatch.setattr(K, "DIRECT_LAUNCH", False)
+    monkeypatch.setattr(launch, "DIRECT_LAUNCH", False)
     xb, vb, _ = run(model, v0, dt, 30, method, True)
     assert np.array_equal(xa, xb) and np.array_equal(va, vb)
 

@@ -265,7 +265,7 @@ def test_code_paths_follow_the_declared_products():
         model, x = cloth(5, **kw)
         x_nd = vec3_ndarray(model.n, x)
         blocks = {}
-        solvers.operator._hessian_plan(model, x_nd, True, None, blocks)
+        solvers.operator.hessian_plan(model, x_nd, True, None, blocks)
         fused = solver._fused_setup(model, solver._work(model), x_nd, True, blocks)
         assert (fused is not None) == (name == "declared")
         b = vec3_ndarray(model.n, np.random.default_rng(3).standard_normal((model.n, 3)))
@@ -316,12 +316,12 @@ def test_a_membrane_takes_the_fused_pcg_paths():
     model, x = membrane()
     x_nd = vec3_ndarray(model.n, x)
     blocks = {}
-    solvers.operator._hessian_plan(model, x_nd, True, None, blocks)
+    solvers.operator.hessian_plan(model, x_nd, True, None, blocks)
     fused = solver._fused_setup(model, solver._work(model), x_nd, True, blocks)
     assert fused is not None and fused[2]["n"] == model.energies[0].n_elements and fused[2]["k"] == 3
     assert solver._fused_setup(model, solver._work(model), x_nd, False, blocks) is None   # exact Hessian: generic
     two, _ = membrane()
     two.add_energy(two.energies[0])
     blocks = {}
-    solvers.operator._hessian_plan(two, x_nd, True, None, blocks)
+    solvers.operator.hessian_plan(two, x_nd, True, None, blocks)
     assert solver._fused_setup(two, solver._work(two), x_nd, True, blocks) is None

@@ -24,9 +24,10 @@ from engine import diagnostics
 from engine import mesh as meshes
 from engine.errors import BlowUpError
 from engine.integrators import Stepper, make_integrator, stable_dt_estimate
-from engine.integrators.explicit import run_many_steps as run_fused
 from engine.model import Model
-from lessons.app.recorder import NullRecorder, Recorder, summarize
+from lessons.app.recorder import Recorder
+from lessons.app.recorder_null import NullRecorder
+from lessons.app.recorder_read import summarize
 from engine.scenes import Rod
 from lessons import rod_waves
 from lessons._framework import Lesson, StageContext
@@ -77,6 +78,12 @@ class CallRecorder(NullRecorder):
 
     def mark(self, text, level="WARN"):
         self.marks.append((self.now, text, level))
+
+
+def run_fused(model, state, dt, n_steps, method="symplectic-euler", energy_bound=None, step_offset=0):
+    """n_steps of ``method`` in one launch of the many-steps kernel, through the Stepper (its energies)."""
+    from engine.integrators.stepper import Stepper
+    return Stepper(model, method, many_steps=True).energies(state, dt, n_steps, energy_bound, step_offset)
 
 
 def make_ctx(rec, **cfg):
@@ -208,19 +215,25 @@ def test_explicit_blowup_in_a_real_recording(tmp_path):
 def test_backward_euler_solver_failure_is_a_blowup_at_the_step():
     model, X, v0 = spring_sheet()
     dt = 20.0 * stable_dt_estimate(model)  # stiffness dominates the system: Jacobi-PCG needs many iterations
-    integ = make_integrator("backward-euler", solver="pcg", tol=1e-8)
     fail_after = 5
+    from engine.integrators.implicit import BackwardEuler
+    from engine.solvers import PCGSolver
 
-    def starve(step, state):  # after 5 good steps, allow the solver only 2 iterations at tol 1e-14
-        if step == fail_after:
-            integ.solver.max_iter = 2
-            integ.solver.tol = integ.tol = 1e-14
+    class Starving(PCGSolver):
+        """PCG that, after 5 good solves (one per step), is allowed only 2 iterations at tol 1e-14 (the
+        stepper solves with its own copy of it: LinearSolver.fresh keeps the class)."""
+        def solve(self, *args, **kwargs):
+            self.solves = getattr(self, "solves", 0) + 1
+            if self.solves > fail_after:
+                self.max_iter, self.tol = 2, 1e-14
+            return super().solve(*args, **kwargs)
 
+    integ = BackwardEuler(solver=Starving(1e-8, 1000), tol=1e-8)
     rec = CallRecorder()
     state = model.make_state(X, v0)
     with pytest.raises(BlowUpError) as info:
-        simulate(make_ctx(rec), "sheet", model, state, dt, 50, integrator=integ, every=5, observe=starve,
-                 log=draw_points, fixed=True)
+        simulate(make_ctx(rec), "sheet", model, state, dt, 50, integrator=integ, every=5, log=draw_points,
+                 fixed=True)
     exc = info.value
     assert exc.step == fail_after
     msg = str(exc)
@@ -295,7 +308,7 @@ def test_rod_runner_blowup_at_its_step(method, cfl):
 
 
 # --------------------------------------------------------------------------------------------
-# the fused many-steps-per-launch spring kernel (engine.integrators.explicit.run_many_steps)
+# the fused many-steps-per-launch spring kernel (the Stepper's many-steps path, Stepper.energies)
 # --------------------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("method,over", [("symplectic-euler", 1.05), ("velocity-verlet", 1.05), ("forward-euler", 0.5)])

@@ -106,7 +106,8 @@ def test_stage5_static_stretch(stages):
 
 
 def test_stage5_records_the_stretched_strips(tmp_path):
-    from lessons.app.recorder import Recorder, summarize
+    from lessons.app.recorder import Recorder
+    from lessons.app.recorder_read import summarize
     rec = Recorder(tmp_path / "a.rrd", "test")
     assert_all_passed(run_stage(LESSON, 5, rec=rec, strip_cells=40))
     rec.close()
@@ -119,7 +120,8 @@ def test_stage5_records_the_stretched_strips(tmp_path):
 def test_stage2_records_each_wave_in_its_own_view_coloured_by_its_displacement(tmp_path):
     """P and S waves along x and y each draw a mesh (no springs) of tens of frames over the S waves'
     time, coloured by the component the wave carries on the fixed scale A = strain / k."""
-    from lessons.app.recorder import Recorder, summarize
+    from lessons.app.recorder import Recorder
+    from lessons.app.recorder_read import summarize
     rec = Recorder(tmp_path / "a.rrd", "test")
     assert_all_passed(run_stage(LESSON, 2, rec=rec))
     rec.close()

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from engine.errors import ParameterError
-from lessons.app.recorder import summarize
+from lessons.app.recorder_read import summarize
 from lessons._framework import validate_config
 from lessons.bending import LESSON, BendingConfig
 from lessons.bending.stages import closed_form_ratio
@@ -261,7 +261,7 @@ def test_backward_euler_override_runs_the_cloth_falls_and_the_release_as_scene_r
 def test_explicit_override_substeps_the_release_and_keeps_its_energy():
     import io
 
-    from lessons.app.recorder import NullRecorder
+    from lessons.app.recorder_null import NullRecorder
     from lessons._framework import StageContext, Stepping
 
     stream = io.StringIO()  # a softer shell (larger CFL step) keeps the test short: ~30000 -> ~16000 sub-steps
@@ -333,7 +333,7 @@ def test_range_edges_run_and_pass():
 
 
 def test_stiff_cloths_get_newton_steps_in_proportion():
-    from lessons.bending.stages import newton_cap
+    from lessons.bending.stages_structures import newton_cap
     assert newton_cap(BendingConfig()) == 400  # the default cloth: unchanged
     assert newton_cap(BendingConfig(cloth_E=1e5)) == 4000  # 786 steps measured for the softest cloth there
 

@@ -12,11 +12,11 @@ from engine.solvers import pardiso_available
 
 from engine.constants import G
 from engine.errors import ParameterError
-from lessons.app.recorder import summarize
+from lessons.app.recorder_read import summarize
 from lessons._framework import validate_config
 from lessons.explicit_vs_implicit import LESSON, ExplicitImplicitConfig
 from engine.theory.schemes import symplectic_euler_growth
-from lessons.explicit_vs_implicit.stages import _crossover
+from lessons.explicit_vs_implicit.stages_tradeoffs import _crossover
 from tests.helpers import assert_all_passed, assert_unique_ids, run_stage
 
 

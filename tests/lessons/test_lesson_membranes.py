@@ -8,7 +8,7 @@ import pytest
 
 from engine.errors import ParameterError
 from lessons._framework import run_lesson, validate_config
-from lessons.app.recorder import NullRecorder
+from lessons.app.recorder_null import NullRecorder
 from lessons.membranes import LESSON, MembranesConfig
 
 

@@ -1,5 +1,5 @@
 """Lesson springs (every experiment, key figures asserted) and the fused spring kernel
-(engine.integrators.explicit.run_many_steps) against the step-by-step explicit integrators.
+(the Stepper's many-steps path, Stepper.energies) against the step-by-step explicit integrators.
 
 The bad-input cases of the issue (zero/negative rest length, coincident endpoints, k <= 0,
 edge or pin index out of range) are covered by tests/engine/test_springs_energy.py.
@@ -14,7 +14,6 @@ from engine.energies.bending import BendingEnergy
 from engine.errors import BlowUpError
 from engine.integrators import Stepper
 from engine.stability import stable_dt_estimate
-from engine.integrators.explicit import run_many_steps as run_fused
 from engine.model import Model
 from lessons._framework import validate_config
 from lessons.springs import LESSON, SpringsConfig
@@ -37,6 +36,12 @@ def _network(gravity=None, pinned=None, seed=0):
     x0 = X + 0.02 * rng.standard_normal(X.shape)
     v0 = 0.5 * rng.standard_normal(X.shape)
     return model, x0, v0
+
+
+def run_fused(model, state, dt, n_steps, method="symplectic-euler", energy_bound=None, step_offset=0):
+    """n_steps of ``method`` in one launch of the many-steps kernel, through the Stepper (its energies)."""
+    from engine.integrators.stepper import Stepper
+    return Stepper(model, method, many_steps=True).energies(state, dt, n_steps, energy_bound, step_offset)
 
 
 CASES = {"free": dict(), "gravity_and_pins": dict(gravity=(0.0, -9.81, 0.0), pinned=[0, 3])}
@@ -125,7 +130,7 @@ def test_fused_forward_euler_grows_and_non_finite_energy_is_caught_without_a_bou
 def test_fused_bad_input():
     model, x0, v0 = _network()
     st = model.make_state(x0, v0)
-    with pytest.raises(ValueError, match="unknown method 'leapfrog'"):
+    with pytest.raises(ValueError, match="unknown integrator 'leapfrog'"):
         run_fused(model, st, 1e-3, 10, "leapfrog")
     for dt in (0.0, -1e-3, math.nan, math.inf):
         with pytest.raises(ValueError, match="dt must be > 0"):
@@ -308,8 +313,8 @@ def test_velocity_verlet_pulses_meet_the_undamped_theory():
 def test_backward_euler_with_cholesky_on_one_chain():
     """--solver cholesky reaches the scheme's prediction too (one chain: the cost is in the factorisations)."""
     from lessons._framework import StageContext, Stepping
-    from lessons.app.recorder import NullRecorder
-    from lessons.springs import scene, stages as springs
+    from lessons.app.recorder_null import NullRecorder
+    from lessons.springs import scene, stages_dynamics as springs
     cfg = SpringsConfig(**SMALL)
     ctx = StageContext(LESSON, cfg, NullRecorder(), 4, quiet=True,
                        stepping=Stepping(integrator="backward-euler", solver="cholesky"))
@@ -332,7 +337,8 @@ def test_stage2_views_frame_each_run(tmp_path):
     """The chains are seen from the front, the drifting frame about its centre of mass (its drawn
     box stays about its own size over the run), and forward Euler's view spans its first 1000 steps,
     drawn every few steps up to where it is stopped."""
-    from lessons.app.recorder import Recorder, summarize
+    from lessons.app.recorder import Recorder
+    from lessons.app.recorder_read import summarize
     rec = Recorder(tmp_path / "a.rrd", "test")
     assert_all_passed(run_stage(LESSON, 2, rec=rec, steps=20_000))
     rec.close()
@@ -353,7 +359,8 @@ def test_stage2_views_frame_each_run(tmp_path):
 
 
 def test_stage5_draws_the_rod_unloaded_and_hanging_side_by_side(tmp_path):
-    from lessons.app.recorder import Recorder, summarize
+    from lessons.app.recorder import Recorder
+    from lessons.app.recorder_read import summarize
     rec = Recorder(tmp_path / "a.rrd", "test")
     assert_all_passed(run_stage(LESSON, 5, rec=rec))
     rec.close()

@@ -18,8 +18,8 @@ import pytest
 from engine.errors import BlowUpError, ParameterError
 from lessons.app import registry
 from lessons._budget import WORK_BUDGET_S
-from lessons._framework import StageContext, _field_type, validate_config
-from lessons.app.recorder import NullRecorder
+from lessons._framework import StageContext, field_type, validate_config
+from lessons.app.recorder_null import NullRecorder
 
 LESSONS = {l.id: l for l in registry.all_lessons()}
 WALKED = ("rod-waves", "springs", "area-springs", "explicit-vs-implicit")
@@ -50,7 +50,7 @@ def cases(lesson_id: str):
         meta = f.metadata
         if not meta or meta.get("choices"):
             continue
-        kind = _field_type(f)
+        kind = field_type(f)
         for v in range_values(meta, kind, getattr(config(), f.name) or 1):
             out.append((f.name, v))
     return out

@@ -30,9 +30,9 @@ from engine.energies.bending import BendingEnergy
 from engine.mesh import Mesh, MeshError
 from engine.errors import ModelError
 from engine.model import Model
-from lessons.app.recorder import summarize
+from lessons.app.recorder_read import summarize
 from lessons.app import cli, registry
-from lessons._framework import Stepping, _field_type, range_text
+from lessons._framework import Stepping, field_type, range_text
 from tests.helpers import ROOT
 
 LESSONS = registry.all_lessons()
@@ -95,10 +95,10 @@ def _numeric_fields():
     cases = []
     for lesson in LESSONS:
         for f in dataclasses.fields(lesson.config):
-            if f.metadata and not f.metadata.get("choices") and _field_type(f) in (int, float):
+            if f.metadata and not f.metadata.get("choices") and field_type(f) in (int, float):
                 cases.append(pytest.param(lesson.id, f, id=f"{lesson.id}--{f.name}"))
     for f in dataclasses.fields(Stepping):
-        if f.metadata and not f.metadata.get("choices") and _field_type(f) in (int, float):
+        if f.metadata and not f.metadata.get("choices") and field_type(f) in (int, float):
             cases.append(pytest.param(LESSONS[0].id, f, id=f"stepping--{f.name}"))
     return cases
 
@@ -106,13 +106,13 @@ def _numeric_fields():
 def test_every_lesson_has_numeric_fields_with_documented_ranges():
     for lesson in LESSONS:
         for f in dataclasses.fields(lesson.config):
-            if f.metadata and _field_type(f) in (int, float) and not f.metadata.get("choices"):
+            if f.metadata and field_type(f) in (int, float) and not f.metadata.get("choices"):
                 assert range_text(f.metadata) != "any value", f"{lesson.id}: --{f.name} has no range"
 
 
 @pytest.mark.parametrize("lesson_id,field", _numeric_fields())
 def test_out_of_range_values_are_one_line_errors_naming_flag_value_and_range(tmp_path, lesson_id, field):
-    kind, meta = _field_type(field), field.metadata
+    kind, meta = field_type(field), field.metadata
     flag = "--" + field.name.replace("_", "-")
     values = _outside(kind, meta)
     assert {"nan", "inf", "-inf"} <= set(values)
