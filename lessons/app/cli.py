@@ -20,6 +20,7 @@ an earlier run under the final names alone (``--overwrite-partial``: the final n
 from __future__ import annotations
 
 import dataclasses
+import importlib
 import os
 import re
 import signal
@@ -38,6 +39,8 @@ from .run_plan import plan_run, RunRequest
 from .._framework import Terminated, pending_signal, note_signal, run_lesson
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INT, EXIT_TERM = 0, 1, 2, 130, 143
+COMMANDS = {"exercise": (".exercises", "write_template"), "check": (".grading", "check"),
+            "grade": (".roster", "grade"), "view": (".view", "view")}   # command: (module, function(argv, out, err))
 EXIT_HUP, EXIT_PIPE = 129, 141
 HANDLED_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
 
@@ -413,8 +416,8 @@ def main(argv: list[str] | None = None, restore_signals: bool = True) -> int:
         lessons_ = registry.all_lessons()
         ids = [l.id for l in lessons_]
         if not argv:
-            raise UsageError("a command is required: list, run, exercise, check or grade (see 'python -m lessons "
-                             "--help')")
+            raise UsageError("a command is required: list, run, exercise, check, grade or view (see 'python -m "
+                             "lessons --help')")
         if argv[0] in ("-h", "--help", "--version"):
             main_parser(ids).parse_args(argv[:1])
             return EXIT_OK
@@ -425,17 +428,11 @@ def main(argv: list[str] | None = None, restore_signals: bool = True) -> int:
             return _list(sys.stdout)
         if command == "run":
             return run(rest, signals=signals)
-        if command == "exercise":
-            from .exercises import write_template
-            return write_template(rest, sys.stdout)
-        if command == "check":
-            from .grading import check
-            return check(rest, sys.stdout)
-        if command == "grade":
-            from .roster import grade
-            return grade(rest, sys.stdout, sys.stderr)
-        raise UsageError(f"command must be 'list', 'run', 'exercise', 'check' or 'grade' (got {command!r}); see "
-                         f"'python -m lessons --help'")
+        if command in COMMANDS:   # the other commands' modules, loaded only when used
+            module, name = COMMANDS[command]
+            return getattr(importlib.import_module(module, __package__), name)(rest, sys.stdout, sys.stderr)
+        raise UsageError(f"command must be 'list', 'run', 'exercise', 'check', 'grade' or 'view' (got {command!r}); "
+                         f"see 'python -m lessons --help'")
     except SystemExit as exc:  # --help, --version
         return int(exc.code or 0)
     except UsageError as exc:  # one line, whatever the user typed (control characters escaped)

@@ -6,6 +6,7 @@ equation it implements, and an empty body. ``python -m lessons check LESSON --so
 grades it (lessons.app.grading).
 """
 import importlib
+import sys
 import textwrap
 from pathlib import Path
 
@@ -89,7 +90,7 @@ def prepare_outputs(folder: Path, paths: list[Path]) -> list[OutputFile]:
     return files
 
 
-def write_template(argv: list[str], out) -> int:
+def write_template(argv: list[str], out, err=sys.stderr) -> int:
     """``exercise LESSON|all [DIR]``: write the templates; refuse to overwrite a file."""
     available = lessons_with_exercises()
     ids = [l.id for l in available]

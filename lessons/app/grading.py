@@ -108,7 +108,7 @@ def _results_target(text: str, solution: Path):
     return target
 
 
-def check(argv: list[str], out=sys.stdout) -> int:
+def check(argv: list[str], out=sys.stdout, err=sys.stderr) -> int:
     available = lessons_with_exercises()
     ids = [l.id for l in available]
     args = _parser(ids).parse_args(argv)
