@@ -61,3 +61,18 @@ def main_in(tmp_path, monkeypatch, capture, *argv, stdin=None):
     rc = cli_mod.main(list(argv))
     captured = capture.readouterr()
     return rc, captured.out, captured.err
+
+
+def write_points_recording(path, steps: int = 20, points: int = 2000, app: str = "elastic_lessons_test") -> Path:
+    """A small recording written by the SDK: ``points`` points over ``steps`` steps of a ``step`` timeline
+    (smooth positions, so that it is compressed)."""
+    import numpy as np
+    import rerun as rr
+    rec = rr.RecordingStream(app)
+    rec.save(str(path))
+    for step in range(steps):
+        rec.set_time("step", sequence=step)
+        rec.log("points", rr.Points3D(np.linspace(0.0, 1.0 + step, 3 * points).reshape(points, 3)))
+    rec.flush()
+    rec.disconnect()
+    return Path(path)

@@ -8,21 +8,13 @@ import pytest
 
 from lessons.tools import pictures
 from lessons.tools.viewer_processes import unreadable_recording
+from tests.helpers import write_points_recording
 
 
 @pytest.fixture(scope="module")
 def good_rrd(tmp_path_factory):
     """A small recording written by the SDK (points over 20 steps; smooth, so that it is compressed)."""
-    import rerun as rr
-    path = tmp_path_factory.mktemp("rrd") / "good.rrd"
-    rec = rr.RecordingStream("elastic_lessons_test_pictures")
-    rec.save(str(path))
-    for step in range(20):
-        rec.set_time("step", sequence=step)
-        rec.log("points", rr.Points3D(np.linspace(0.0, 1.0 + step, 6000).reshape(2000, 3)))
-    rec.flush()
-    rec.disconnect()
-    return path
+    return write_points_recording(tmp_path_factory.mktemp("rrd") / "good.rrd", app="elastic_lessons_test_pictures")
 
 
 def _corrupt(good: bytes, how: str) -> bytes:

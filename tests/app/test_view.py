@@ -9,24 +9,16 @@ import time
 import urllib.parse
 import urllib.request
 
-import numpy as np
 import pytest
 
 from lessons.app.view import web_address
+from tests.helpers import write_points_recording
 
 
 @pytest.fixture(scope="module")
 def small_rrd(tmp_path_factory):
-    import rerun as rr
-    path = tmp_path_factory.mktemp("view") / "points.rrd"
-    rec = rr.RecordingStream("elastic_lessons_test_view")
-    rec.save(str(path))
-    for step in range(5):
-        rec.set_time("step", sequence=step)
-        rec.log("points", rr.Points3D(np.random.default_rng(step).random((100, 3))))
-    rec.flush()
-    rec.disconnect()
-    return path
+    return write_points_recording(tmp_path_factory.mktemp("view") / "points.rrd", steps=5, points=100,
+                                  app="elastic_lessons_test_view")
 
 
 def cli(*args):
