@@ -28,7 +28,7 @@ def default_runs(tmp_path_factory):
     ``python -m lessons run`` records it; the recording tests and the lessons' own tests share it."""
     from lessons.app import registry
     from lessons._framework import run_lesson
-    from lessons.app.cli import _make_recorder
+    from lessons.app.cli import make_recorder
 
     out_dir = tmp_path_factory.mktemp("recordings")
     made = {}
@@ -37,7 +37,7 @@ def default_runs(tmp_path_factory):
         if lesson_id not in made:
             lesson = registry.get(lesson_id)
             path = out_dir / f"{lesson.id}.rrd"
-            rec = _make_recorder(lesson, path)
+            rec = make_recorder(lesson, path)
             collected = {}
             try:
                 passed = run_lesson(lesson, lesson.config(), rec, None, out=io.StringIO(), err=io.StringIO(),

@@ -205,11 +205,14 @@ def main_parser(lesson_ids: list[str]) -> argparse.ArgumentParser:
                        "                    (see 'python -m lessons grade --help')\n"
                        "  view FILE.rrd [--web]\n"
                        "                    open a recording in Rerun's viewer; --web serves the web viewer on\n"
-                       "                    this machine and prints its address (see 'python -m lessons view --help')"
+                       "                    this machine and prints its address (see 'python -m lessons view --help')\n"
+                       "  notebook LESSON|all DIR\n"
+                       "                    write each lesson as a Jupyter notebook generated from it\n"
+                       "                    (see 'python -m lessons notebook --help')"
                        "\n\nLessons: " + ", ".join(lesson_ids),
                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("command", choices=["list", "run", "exercise", "check", "grade", "view"],
-                   help="list, run, exercise, check, grade or view")
+    p.add_argument("command", choices=["list", "run", "exercise", "check", "grade", "view", "notebook"],
+                   help="list, run, exercise, check, grade, view or notebook")
     p.add_argument("--version", action="version", version=f"%(prog)s {_version()}",
                    help="print the package version and exit")
     return p

@@ -39,8 +39,9 @@ from .run_plan import plan_run, RunRequest
 from .._framework import Terminated, pending_signal, note_signal, run_lesson
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INT, EXIT_TERM = 0, 1, 2, 130, 143
-COMMANDS = {"exercise": (".exercises", "write_template"), "check": (".grading", "check"),
-            "grade": (".roster", "grade"), "view": (".view", "view")}   # command: (module, function(argv, out, err))
+COMMANDS = {"exercise": (".exercises", "write_template"), "check": (".grading", "check"),   # command: (module,
+            "grade": (".roster", "grade"), "view": (".view", "view"),                    # function(argv, out, err))
+            "notebook": (".notebook", "write_notebooks")}
 EXIT_HUP, EXIT_PIPE = 129, 141
 HANDLED_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
 
@@ -223,7 +224,7 @@ class _Session:
         returns whether ``--pause`` stopped the run during the lesson. An exception from the lesson
         closes the recording (partial) and is raised again."""
         plan, pause = self.plan, self.plan.pause
-        rec = _make_recorder(l, self.record_targets[l.id], live)
+        rec = make_recorder(l, self.record_targets[l.id], live)
         self.open_rec = (rec, l)
         # between= only with --pause (a runner stubbed in the tests may not take it)
         extra = {} if pause is None else {"between": pause.for_lesson(l)}
@@ -389,7 +390,7 @@ def _package_version() -> str:
     return package_version()
 
 
-def _make_recorder(lesson, path, live: bool = False):
+def make_recorder(lesson, path, live: bool = False):
     """The lesson's recorder: the file at ``path`` (None: no file), streaming into a viewer that
     follows the stage being run when ``live``."""
     from lessons.app.recorder import Recorder
@@ -416,8 +417,8 @@ def main(argv: list[str] | None = None, restore_signals: bool = True) -> int:
         lessons_ = registry.all_lessons()
         ids = [l.id for l in lessons_]
         if not argv:
-            raise UsageError("a command is required: list, run, exercise, check, grade or view (see 'python -m "
-                             "lessons --help')")
+            raise UsageError("a command is required: list, run, exercise, check, grade, view or notebook (see "
+                             "'python -m lessons --help')")
         if argv[0] in ("-h", "--help", "--version"):
             main_parser(ids).parse_args(argv[:1])
             return EXIT_OK
@@ -431,8 +432,8 @@ def main(argv: list[str] | None = None, restore_signals: bool = True) -> int:
         if command in COMMANDS:   # the other commands' modules, loaded only when used
             module, name = COMMANDS[command]
             return getattr(importlib.import_module(module, __package__), name)(rest, sys.stdout, sys.stderr)
-        raise UsageError(f"command must be 'list', 'run', 'exercise', 'check', 'grade' or 'view' (got {command!r}); "
-                         f"see 'python -m lessons --help'")
+        raise UsageError(f"command must be 'list', 'run', 'exercise', 'check', 'grade', 'view' or 'notebook' (got "
+                         f"{command!r}); see 'python -m lessons --help'")
     except SystemExit as exc:  # --help, --version
         return int(exc.code or 0)
     except UsageError as exc:  # one line, whatever the user typed (control characters escaped)

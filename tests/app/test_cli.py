@@ -77,7 +77,7 @@ def test_failed_experiment_gives_exit_1_and_is_in_results(tmp_path):
     (["run", "springs", "--tol", "inf"], "--tol must be a finite number"),
     (["run", "springs", "--newton-iterations", "0"], "--newton-iterations must be ≥ 1 and ≤ 100 (got 0)"),
     (["run"], "LESSON is required"),
-    (["frobnicate"], "command must be 'list', 'run', 'exercise', 'check', 'grade' or 'view'"),
+    (["frobnicate"], "command must be 'list', 'run', 'exercise', 'check', 'grade', 'view' or 'notebook'"),
 ])
 def test_bad_input_is_one_line_exit_2_and_writes_nothing(tmp_path, args, needle):
     (tmp_path / "blocker").write_text("a file where a directory is expected")

@@ -152,8 +152,8 @@ def test_out_of_range_values_are_one_line_errors_naming_flag_value_and_range(tmp
                                                   "'elastic'"]),
     (["run", "rod-waves", "--no-such-flag", "1"], ["unrecognized arguments: --no-such-flag 1"]),
     (["run", "rod-waves", "--E"], ["--E: expected one argument"]),
-    (["walk"], ["command must be 'list', 'run', 'exercise', 'check', 'grade' or 'view'", "'walk'"]),
-    ([], ["a command is required: list, run, exercise, check, grade or view"]),
+    (["walk"], ["command must be 'list', 'run', 'exercise', 'check', 'grade', 'view' or 'notebook'", "'walk'"]),
+    ([], ["a command is required: list, run, exercise, check, grade, view or notebook"]),
     (["run"], ["LESSON is required"]),
 ])
 def test_unknown_names_and_missing_values_are_one_line_errors(tmp_path, argv, needles):
