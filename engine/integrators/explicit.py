@@ -20,8 +20,7 @@ import math
 
 import numpy as np
 
-from engine.constants import EXPLICIT
-from engine.fields import WorkArrays, int_ndarray, scalar_ndarray, vec3_ndarray, zero_vec3
+from engine.fields import int_ndarray, scalar_ndarray, vec3_ndarray, zero_vec3
 from engine.integrators import batched_steps as B
 from engine.integrators import cloth_kernels as C
 from engine.integrators import kernels as K

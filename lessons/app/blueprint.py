@@ -21,7 +21,6 @@ from dataclasses import dataclass, field
 import numpy as np
 import rerun.blueprint as rrb
 
-from ..views import CAMERAS
 
 PROGRESS_TICKS = 1000       # a run's span on the ``progress`` timeline
 PLAYBACK_SECONDS = 20.0     # a run plays in this many seconds at the viewer's 1x speed

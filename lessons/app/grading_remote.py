@@ -162,7 +162,7 @@ class RemoteFunction:
     """The student's function as the checks see it here (lessons._exercise.LocalFunction's ``via``):
     each call is answered by the grading child within the task's deadline."""
 
-    def __init__(self, name: str, grader: "Grader"):
+    def __init__(self, name: str, grader):   # grader: a grading_lesson.Grader
         self.name, self.grader = name, grader
 
     def via(self, factory, *args):

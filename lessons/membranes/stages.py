@@ -233,8 +233,8 @@ def stage_waves(ctx):
     def spread(values):
         return max(values) / min(values) - 1
     p_dirs = list(DIRECTIONS)
-    exps.append(Experiment(f"the P speeds of the four directions differ by the grid's own spread (max/min - 1; "
-                           f"the continuum's is 0)", spread([predicted["P", d] for d in p_dirs]),
+    exps.append(Experiment("the P speeds of the four directions differ by the grid's own spread (max/min - 1; "
+                           "the continuum's is 0)", spread([predicted["P", d] for d in p_dirs]),
                            spread([measured["P", d] for d in p_dirs]), LATTICE_TOL, "abs", id="stvk-p-spread",
                            reason=reason))
     s_ratio = measured["S", "x"] / measured["S", "diagonal (1,1)"] - 1
