@@ -271,3 +271,11 @@ def test_no_source_module_is_over_500_lines():
     long = {str(p.relative_to(ROOT)): n for p in _source_files("engine", "lessons", "bench")
             if (n := len(p.read_text().splitlines())) > 500}
     assert not long, long
+
+
+def test_the_viewer_tools_import_neither_the_app_nor_the_lessons():
+    """lessons/tools drives the real viewer; the app's view command and the tests use it, not the other way."""
+    offenders = {str(p.relative_to(ROOT)): sorted(m for m in _modules(p) | _dynamic_imports(p)
+                                                  if m.startswith("lessons.") and not m.startswith("lessons.tools"))
+                 for p in _source_files("lessons/tools")}
+    assert not {k: v for k, v in offenders.items() if v}, offenders

@@ -15,9 +15,6 @@ recording, a port out of range or in use), each in one line.
 """
 from __future__ import annotations
 
-import os
-import shutil
-import signal
 import socket
 import subprocess
 import sys
@@ -30,6 +27,8 @@ from pathlib import Path
 
 from .arguments import Parser, UsageError
 from .._framework import Terminated
+from ..tools.viewer_processes import log_tail, stop_process, unreadable_recording
+from ..tools.viewer_requirements import find_rerun
 
 READY_TIMEOUT_S = 60.0   # how long the web viewer may take to answer (the first start unpacks its assets)
 
@@ -69,26 +68,12 @@ def _port(flag: str, value: int, bind: str) -> int:
 
 
 def _readable(path: Path) -> None:
-    from lessons.tools.viewer_processes import unreadable_recording
     if not path.is_file():
         raise UsageError(f"no such recording: {path}")
     problem = unreadable_recording(path)
     if problem:
         raise UsageError(f"{path} is not a readable Rerun recording ({problem}); record it again: python -m lessons "
                          f"run LESSON --record {path}")
-
-
-def _rerun() -> str:
-    """The viewer's own executable (rerun-sdk's ``rerun`` command is a Python script that starts it as a
-    child, which would outlive a stop sent to the script)."""
-    import importlib.util
-    spec = importlib.util.find_spec("rerun_cli")
-    if spec is not None and spec.origin:
-        exe = Path(spec.origin).with_name("rerun")
-        if exe.is_file():
-            return str(exe)
-    exe = Path(sys.executable).with_name("rerun")
-    return str(exe) if exe.exists() else (shutil.which("rerun") or "rerun")
 
 
 def web_address(host: str, port: int, grpc_port: int) -> str:
@@ -105,23 +90,24 @@ def _answers(url: str) -> bool:
         return False
 
 
-def _tail(text: str, lines: int = 8) -> str:
-    return " | ".join(line.strip() for line in text.strip().splitlines()[-lines:]) or "no output"
-
-
 def view(argv: list[str], out=sys.stdout, err=sys.stderr) -> int:
     args = _parser().parse_args(argv)
     path = Path(args.file)
     _readable(path)
+    rerun = find_rerun()
+    if rerun is None:
+        print("python -m lessons view: the viewer (rerun-sdk's rerun) is not installed: pip install rerun-sdk",
+              file=err, flush=True)
+        return 1
     if not args.web:
-        return subprocess.call([_rerun(), str(path)])
+        return subprocess.call([rerun, str(path)])
     host = "127.0.0.1" if args.bind in ("0.0.0.0", "") else args.bind
     port = _port("--port", args.port, args.bind)
     grpc_port = _port("--grpc-port", args.grpc_port, args.bind)
     if port == grpc_port:
         raise UsageError(f"--port and --grpc-port must differ (both {port})")
-    log = tempfile.TemporaryFile(mode="w+")   # the server's log: read back only if it fails to start
-    proc = subprocess.Popen([_rerun(), str(path), "--serve-web", "--web-viewer-port", str(port), "--port",
+    log = tempfile.NamedTemporaryFile(mode="w", prefix="rerun-web-", suffix=".log")   # read only if it fails
+    proc = subprocess.Popen([rerun, str(path), "--serve-web", "--web-viewer-port", str(port), "--port",
                              str(grpc_port), "--bind", args.bind], stdout=log, stderr=subprocess.STDOUT,
                             start_new_session=True)
     try:
@@ -129,10 +115,9 @@ def view(argv: list[str], out=sys.stdout, err=sys.stderr) -> int:
         deadline = time.monotonic() + READY_TIMEOUT_S
         while not _answers(page):
             if proc.poll() is not None or time.monotonic() > deadline:
-                _stop(proc)
-                log.seek(0)
-                output = log.read()
-                print(f"python -m lessons view: the web viewer did not start ({_tail(output)})", file=err, flush=True)
+                stop_process(proc)
+                output = " | ".join(log_tail(Path(log.name), 8).splitlines()) or "no output"
+                print(f"python -m lessons view: the web viewer did not start ({output})", file=err, flush=True)
                 return 1
             time.sleep(0.2)
         print(f"serving {path} with Rerun's web viewer: open {web_address(host, port, grpc_port)}  (Ctrl-C stops it)",
@@ -144,19 +129,6 @@ def view(argv: list[str], out=sys.stdout, err=sys.stderr) -> int:
         print("stopped: the web viewer is closed", file=out, flush=True)
         return 0
     finally:
+        stop_process(proc)   # the server and anything it started (its own process group)
         log.close()
-        _stop(proc)
 
-
-def _stop(proc: subprocess.Popen) -> None:
-    """Stop the server and anything it started (its own process group)."""
-    for sig, wait in ((signal.SIGTERM, 10), (signal.SIGKILL, 10)):
-        try:
-            os.killpg(proc.pid, sig)
-        except ProcessLookupError:
-            break
-        try:
-            proc.wait(timeout=wait)
-            break
-        except subprocess.TimeoutExpired:
-            continue

@@ -158,7 +158,7 @@ def _park_pointer(display: str, x: int, y: int) -> bool:
 _ANSI = re.compile(r"\x1b\[[0-9;]*[A-Za-z]")
 
 
-def _tail(path: Path, lines: int = 15) -> str:
+def log_tail(path: Path, lines: int = 15) -> str:
     """The last lines of a log, colour codes removed; its ERROR/panic lines first if they are earlier."""
     try:
         text = [_ANSI.sub("", line) for line in path.read_text(errors="replace").splitlines()]
@@ -218,7 +218,7 @@ class ViewerProcesses:
         finally:
             os.close(read_fd)
         if not number.strip().isdigit():
-            raise ViewerUnavailable("Xvfb did not start: " + (_tail(self._scratch / "xvfb.log") or "no output")
+            raise ViewerUnavailable("Xvfb did not start: " + (log_tail(self._scratch / "xvfb.log") or "no output")
                                     + f". Install with: {APT_INSTALL}")
         self.display = ":" + number.strip().decode()
         _park_pointer(self.display, self.size[0] + _POINTER_MARGIN // 2, self.size[1] + _POINTER_MARGIN // 2)
@@ -269,7 +269,7 @@ class ViewerProcesses:
     def _viewer_died(self) -> None:
         proc = self._procs.viewer
         if proc is not None and proc.poll() is not None:
-            log = _tail(self._viewer_log, 25)
+            log = log_tail(self._viewer_log, 25)
             # Someone took the port between _free_port() and the viewer binding it: the viewer
             # then streams the recording to whatever listens there and exits 0.
             if re.search(r"already in use|already listening at this address|Another viewer is already running", log):
@@ -291,7 +291,7 @@ class ViewerProcesses:
             self._viewer_died()
             if time.monotonic() > deadline:
                 raise ViewerUnavailable(f"the Rerun viewer did not load {self.path} within {self.timeout:.0f} s "
-                                        f"({last_error}). Its last output:\n{_tail(self._viewer_log)}")
+                                        f"({last_error}). Its last output:\n{log_tail(self._viewer_log)}")
             try:
                 if self.client is None:  # connecting fails ("transport error") until the server is up
                     self.client = _Guarded(ViewerClient, self.call_timeout, self._kill_viewer).connect(
