@@ -238,8 +238,9 @@ def corner_stepper(model: Model, method: str = "symplectic-euler", work: dict | 
     form (a membrane); None for any other model. Each step launches the energy's per-element force kernel and
     :func:`engine.integrators.kernels.corner_update_kernel` (gather + update), both bound
     (:class:`engine.integrators.launch.BoundKernel`): symplectic Euler = forces, gather + update;
-    velocity Verlet = kick-drift, forces, gather + kick, after forces, gather + acceleration at begin. The generic path launches the same force kernel, then a zeroing, a gather and an
-    update through Taichi's own call; the states are bitwise the same (tested). ``work``: the dict
+    velocity Verlet = kick-drift, forces, gather + kick (begin: forces, gather + acceleration). The
+    generic path launches the same force kernel, then a zeroing, a gather and an update through
+    Taichi's own call; the states are bitwise the same (tested). ``work``: the dict
     that keeps the Verlet acceleration (a Stepper's)."""
     if signature(model) != ("corners",):
         return None
@@ -374,14 +375,17 @@ class ForwardEuler(ExplicitIntegrator):
         state.t += dt
 
 
-class SymplecticEuler(ExplicitIntegrator):
-    """``fused`` (default): a stepper may plan the fast step for it (the one-launch cloth step for
-    springs [+ one hinge energy], the two-pass step for a membrane: bitwise the same result)."""
-
-    name = "symplectic-euler"
+class FusableIntegrator(ExplicitIntegrator):
+    """A method the fast steps know. ``fused`` (default): a stepper may plan the fast step for it (the
+    one-launch cloth step for springs [+ one hinge energy], the two-pass step for a membrane: bitwise
+    the same result)."""
 
     def __init__(self, fused: bool = True):
         self.fused = bool(fused)
+
+
+class SymplecticEuler(FusableIntegrator):
+    name = "symplectic-euler"
 
     def advance(self, ctx, state, dt):
         model = ctx.model
@@ -391,15 +395,12 @@ class SymplecticEuler(ExplicitIntegrator):
         state.t += dt
 
 
-class VelocityVerlet(ExplicitIntegrator):
+class VelocityVerlet(FusableIntegrator):
     """Kick-drift-kick.  The acceleration a(x) is computed in :meth:`begin` (one extra force
     evaluation per run, not per step) and then carried from step to step in the stepper's work
-    arrays (or the fast step's). ``fused``: as for :class:`SymplecticEuler`."""
+    arrays (or the fast step's)."""
 
     name = "velocity-verlet"
-
-    def __init__(self, fused: bool = True):
-        self.fused = bool(fused)
 
     def begin(self, ctx, state):
         model = ctx.model

@@ -233,13 +233,12 @@ class BackwardEuler:
         opts = newton.Options(max_iter=n, exact=self.exact_near_solution and n > 1, exact_retry=EXACT_RETRY,
                               line_search=self.line_search, strict_decrease=True, final_residual=n > 1)
         res = newton.minimize(problem, x, work["trial"], work["dx"], opts)
-        info = StepInfo(newton_iterations=len(res.linear), gradient_norms=problem.gradient_norms,
+        info = StepInfo(newton_iterations=len(res.linear), linear_iterations=[lin.iterations for lin in res.linear],
+                        linear_residuals=[lin.residual for lin in res.linear], gradient_norms=problem.gradient_norms,
                         objectives=res.objectives, step_sizes=res.step_sizes,
                         newton_converged=res.status == "converged",
                         line_search_failed=res.status == "line_search_failed", solves=res.solves,
                         all_linear_iterations=res.linear_iterations)
-        info.linear_iterations = [lin.iterations for lin in res.linear]
-        info.linear_residuals = [lin.residual for lin in res.linear]
         if res.status == "linear":
             copy_vec3(work["xn"], x)  # leave the state as it was
             raise SolverError(f"backward-euler step at t={state.t:.6g} s, Newton iteration {len(res.linear)}: "
@@ -273,16 +272,24 @@ class _StepProblem(newton.Problem):
                           self.a_dt, dt)
         phi += model.elastic_energy(x) - self.W_n
         if be.rayleigh_beta > 0.0 or model.dampers:
-            d, hq = self.work["d"], self.work["hq"]
-            sub_into(x, xn, d)
-            zero_vec3(hq)
+            d, hq = self._damping_product(x)
             if model.dampers:   # 1/(2 dt) (x - x_n)^T D_n (x - x_n), engine.energies.membrane (M3)
-                model.add_damping_product(xn, d, hq)
                 phi += 0.5 / dt * dot_vec3(d, hq)
             else:
-                model.add_hessian_product(xn, d, hq, True)
                 phi += 0.5 * be.rayleigh_beta / dt * dot_vec3(d, hq)
         return phi
+
+    def _damping_product(self, x):
+        """(d, hq): d = x - x_n and hq = D_n d, with D_n the membrane's damping matrix or (Rayleigh beta)
+        the PSD Hessian at x_n."""
+        d, hq = self.work["d"], self.work["hq"]
+        sub_into(x, self.xn, d)
+        zero_vec3(hq)
+        if self.model.dampers:
+            self.model.add_damping_product(self.xn, d, hq)
+        else:
+            self.model.add_hessian_product(self.xn, d, hq, True)
+        return d, hq
 
     def residual(self, x, k: int) -> float:
         """rhs = -grad Phi(x); returns |grad Phi|."""
@@ -291,15 +298,9 @@ class _StepProblem(newton.Problem):
         g2 = _be_residual(x, self.xn, self.v, work["f"], model.mass_nd, model.inv_mass_nd, self.inv_dt2, self.a_dt,
                           dt, self.rhs)
         if k > 0 and (be.rayleigh_beta > 0.0 or model.dampers):   # at x = x_n (k = 0) their terms vanish
-            d, hq = work["d"], work["hq"]
-            sub_into(x, self.xn, d)
-            zero_vec3(hq)
-            if be.rayleigh_beta > 0.0:   # the beta H_n (x - x_n)/dt damping force
-                model.add_hessian_product(self.xn, d, hq, True)
-                g2 = _be_add_scaled(self.rhs, hq, be.rayleigh_beta / dt, model.inv_mass_nd)
-            else:                        # the damping force -D_n v+ = -D_n (x - x_n)/dt
-                model.add_damping_product(self.xn, d, hq)
-                g2 = _be_add_scaled(self.rhs, hq, 1.0 / dt, model.inv_mass_nd)
+            _, hq = self._damping_product(x)   # the damping force -D_n v+ = -D_n (x - x_n)/dt, or beta H_n
+            coef = 1.0 / dt if model.dampers else be.rayleigh_beta / dt
+            g2 = _be_add_scaled(self.rhs, hq, coef, model.inv_mass_nd)
         gnorm = math.sqrt(g2)
         self.gradient_norms.append(gnorm)
         if self.g0 is None:

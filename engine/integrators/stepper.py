@@ -177,18 +177,10 @@ class Stepper:
         on the scene and many-steps paths, else step by step. A step whose total energy is not finite
         or exceeds ``energy_bound`` raises the monitor's BlowUpError naming that step (``step_offset`` +
         its index, counted from 1) with the energies up to it; the state stays at that step."""
-        dt, n_steps = float(dt), int(n_steps)
-        if self.scene_run is not None:
-            return self.scene_run(state, dt, n_steps, self.name, energy_bound, step_offset=step_offset)
-        self._check_plan()
-        if self.many_steps:
-            monitor = Monitor(self.name, dt, energy_bound, model=self.model)
-            return many_steps(self.model, state, dt, n_steps, self.name, monitor, self.work, step_offset)
+        n_steps = int(n_steps)
         if n_steps < 0:
             raise ValueError(f"n_steps must be >= 0 (got {n_steps})")
-        if n_steps == 0:
-            return np.zeros(0), np.zeros(0)
-        _, kin, pot = self.advancer(state, dt, n_steps, energy_bound)(n_steps, step_offset)   # steps counted on
+        _, kin, pot = self.advancer(state, dt, n_steps, energy_bound)(n_steps, step_offset)   # one chunk: every step
         return kin, pot
 
     # -- stepping inside the run loop ------------------------------------------------------------
