@@ -12,8 +12,7 @@ from pathlib import Path
 
 from .._exercise import NUMPY, TI_FUNC, module_file
 from .arguments import UsageError
-from .outfile import OutputFile, OutputWriteError
-from .output_paths import shown_path
+from .output_paths import write_all_or_none
 from . import registry
 
 TEMPLATE_HEAD = '''"""Exercise: {title}.
@@ -73,23 +72,6 @@ def template_text(lesson, folder: str) -> str:
     return "".join(parts)
 
 
-def prepare_outputs(folder: Path, paths: list[Path]) -> list[OutputFile]:
-    """The templates' output files, checked and created (missing folders too) as empty temporary files
-    before any is written, all or none: a DIR that cannot receive them is bad input (UsageError)."""
-    files = []
-    try:
-        for path in paths:
-            file = OutputFile(path)
-            file.prepare()
-            files.append(file)
-    except OSError as exc:
-        for file in reversed(files):
-            file.discard(remove_dirs=True)
-        raise UsageError(f"DIR {shown_path(str(folder))}: cannot write the templates there ({exc.strerror or exc}); "
-                         f"give a folder you can write to") from None
-    return files
-
-
 def write_template(argv: list[str], out, err=sys.stderr) -> int:
     """``exercise LESSON|all [DIR]``: write the templates; refuse to overwrite a file."""
     available = lessons_with_exercises()
@@ -115,20 +97,8 @@ def write_template(argv: list[str], out, err=sys.stderr) -> int:
     if existing:
         raise UsageError(f"{', '.join(existing)} already exists: it may hold your work; give another DIR "
                          f"or move it away first")
-    files = prepare_outputs(folder, [path for _, path in targets])
-    try:
-        for (lesson, _), file in zip(targets, files):
-            file.write_bytes(template_text(lesson, str(folder)).encode("utf-8"))
-        for file in files:
-            file.commit()
-    except OutputWriteError as exc:
-        for file in reversed(files):  # new files all (existing ones are refused above): none is kept
-            if file.written is not None:
-                file.written.unlink(missing_ok=True)
-            file.discard(remove_dirs=True)
-        from .cli import OutputFailed
-        raise OutputFailed(f"DIR {shown_path(str(folder))}: could not write the templates ({exc.strerror or exc}); "
-                           f"nothing is left there") from None
+    write_all_or_none(folder, [(path, template_text(lesson, str(folder)).encode("utf-8")) for lesson, path in targets],
+                      "the templates")
     for lesson, path in targets:
         names = ", ".join(t.name for t in exercise_module(lesson).TASKS)
         out.write(f"wrote {path}: {names}\n")

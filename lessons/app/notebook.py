@@ -21,7 +21,7 @@ import tempfile
 from pathlib import Path
 
 from .arguments import Parser, UsageError
-from .outfile import OutputFile
+from .output_paths import write_all_or_none
 from . import registry
 from .._framework import run_lesson, text_table, validate_config
 
@@ -183,17 +183,9 @@ def write_notebooks(argv: list[str], out=sys.stdout, err=sys.stderr) -> int:
         raise UsageError(f"{', '.join(there)} already there; --force replaces it")
     if folder.exists() and not folder.is_dir():
         raise UsageError(f"DIR {folder} is a file; give a folder")
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise UsageError(f"DIR {folder}: cannot make it ({exc.strerror})") from None
-    files = [OutputFile(t) for t in targets]
-    for f in files:
-        f.prepare()
-    for f, lesson in zip(files, lessons):
-        f.write_bytes((json.dumps(notebook_for(lesson), indent=1) + "\n").encode("utf-8"))
-    for f, t in zip(files, targets):
-        f.commit(True)
+    write_all_or_none(folder, [(t, (json.dumps(notebook_for(lesson), indent=1) + "\n").encode("utf-8"))
+                               for t, lesson in zip(targets, lessons)], "the notebooks")
+    for t in targets:
         print(f"wrote {t}", file=out)
     print("open them with: jupyter lab " + str(folder) + "  (pip install -e '.[notebook]')", file=out)
     return 0

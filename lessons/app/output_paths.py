@@ -78,3 +78,41 @@ def prepare_outputs(targets: list) -> None:
         for t in reversed(done):
             t.discard(remove_dirs=True)
         raise
+
+
+def write_all_or_none(folder, contents: list, what: str) -> None:
+    """Write ``contents`` ((path, bytes) pairs, all in ``folder``) every one or none: each file is first
+    created as an empty temporary file beside its target (missing folders too), then written, then
+    moved onto its name. A folder that cannot receive them is bad input (UsageError: "DIR ...: cannot
+    write <what> there"); a write that fails leaves no new file and keeps every earlier one
+    (cli.OutputFailed: "DIR ...: could not write <what>")."""
+    from pathlib import Path
+
+    from .outfile import OutputFile, OutputWriteError
+    shown = shown_path(str(folder))
+    new = [not Path(path).exists() for path, _ in contents]
+    files = []
+    try:
+        for path, _ in contents:
+            file = OutputFile(path)
+            file.prepare()
+            files.append(file)
+    except OSError as exc:
+        for file in reversed(files):
+            file.discard(remove_dirs=True)
+        raise UsageError(f"DIR {shown}: cannot write {what} there ({exc.strerror or exc}); give a folder you can "
+                         f"write to") from None
+    try:
+        for file, (_, data) in zip(files, contents):
+            file.write_bytes(data)
+        for file in files:
+            file.commit()
+    except OutputWriteError as exc:
+        for file, fresh in zip(reversed(files), reversed(new)):
+            if file.written is not None and fresh:   # a new file goes; one that was replaced stays replaced
+                file.written.unlink(missing_ok=True)
+            file.discard(remove_dirs=True)
+        from .cli import OutputFailed
+        left = "nothing is left there" if all(new) else "no new file is left there"
+        raise OutputFailed(f"DIR {shown}: could not write {what} ({exc.strerror or exc}); {left}") from None
+

@@ -71,3 +71,25 @@ def test_a_file_in_place_of_dir_is_refused(tmp_path):
     (tmp_path / "f").write_text("x")
     done = cli("springs", tmp_path / "f")
     assert done.returncode == 2 and "is a file" in done.stderr
+
+
+def test_a_failed_write_leaves_no_new_notebook_and_keeps_the_old_ones(tmp_path, monkeypatch):
+    import errno
+    import io
+
+    from lessons.app.cli import OutputFailed
+    from lessons.app.notebook import write_notebooks
+    from lessons.app.outfile import OutputFile, OutputWriteError
+    (tmp_path / "springs.ipynb").write_text("mine")
+    write = OutputFile.write_bytes
+
+    def write_bytes(self, data):
+        if self.path.name == "membranes.ipynb":
+            self.discard()
+            raise OutputWriteError(errno.ENOSPC, "No space left on device")
+        return write(self, data)
+    monkeypatch.setattr(OutputFile, "write_bytes", write_bytes)
+    with pytest.raises(OutputFailed, match="could not write the notebooks .*; no new file is left there$"):
+        write_notebooks(["all", str(tmp_path), "--force"], io.StringIO())
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["springs.ipynb"]
+    assert (tmp_path / "springs.ipynb").read_text() == "mine"
