@@ -9,6 +9,7 @@ import math
 import numpy as np
 
 from engine.fields import vec3_ndarray
+from lessons.views import RunView
 
 from .._budget import StageCost, announce as announce_budget, check_stages
 from .._measure import edge_strain, vertex_strain
@@ -100,8 +101,6 @@ def draw_cost_curves(rec, rows, frame_dt: float) -> None:
     """Stage 3's picture (one frame): the cost curves as a log-log chart drawn in the plane, wall-clock
     seconds per simulated second against E for symplectic Euler at its limit and backward Euler with
     pcg and with the direct solver at one frame, a tick per decade and each curve named at its end."""
-    from lessons.views import RunView
-
     direct = rows[0]["direct_name"]
     curves = {"explicit": ("symplectic Euler", [r["t_exp"] for r in rows]),
               "pcg": ("backward Euler, pcg", [r["t_pcg"] for r in rows]),

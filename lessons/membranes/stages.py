@@ -352,28 +352,31 @@ def stage_damping(ctx):
     half = r + damped_margin(lam, cfg.damping_ratio) + 2.0   # the free edges' disturbance stays out of the disc
     n = square_domain_cells(half, 1.0) + 1
     _, m3, ctr, region = wave_grid(n, "alternating", r)
-    model, _ = membrane_model(m3, rho, "baraff-witkin", k_stretch=ks, k_shear=0.5 * ks, damping_stretch=kd,
+    def build(mesh):   # the damped sheet's material, on the run's sheet and on the Bloch patch alike
+        return membrane_model(mesh, rho, "baraff-witkin", k_stretch=ks, k_shear=0.5 * ks, damping_stretch=kd,
                               damping_shear=0.5 * kd)
+    model, _ = build(m3)
     ctx.progress(f"k_d = {kd:.4g} N s/m for a damping ratio {cfg.damping_ratio:g} at the wavelength {lam:g} m: "
                  f"decay rate {gamma:.4g} 1/s, w0 = {w0:.4g} rad/s")
     # the wave on this lattice, with its real lumped masses (4/3 and 2/3 of rho h^2 on the alternating grid)
-    w2h, ch, profile = lattice_wave("alternating", [k, 0.0], [1.0, 0.0], lambda mesh: membrane_model(
-        mesh, rho, "baraff-witkin", k_stretch=ks, k_shear=0.5 * ks, damping_stretch=kd, damping_shear=0.5 * kd))
+    w2h, ch, profile = lattice_wave("alternating", [k, 0.0], [1.0, 0.0], build)
+    shape = profile(m3.vertices)
     damper = model.dampers[0]
     c_max = float((damper.damping_row_sums(model.X) / model.mass[:, None]).max())   # the fastest-damped mode's c
-    dt = cfg.cfl * min(stable_dt_estimate(model), 2.0 / c_max)
-    if 2.0 / c_max < stable_dt_estimate(model):
+    dt_stiff = stable_dt_estimate(model)
+    dt = cfg.cfl * min(dt_stiff, 2.0 / c_max)
+    if 2.0 / c_max < dt_stiff:
         ctx.progress(f"the damping of the shortest waves (c up to {c_max:.3g} 1/s) limits the explicit step to "
-                     f"{2.0 / c_max:.3g} s, below the stiffness' {stable_dt_estimate(model):.3g} s")
+                     f"{2.0 / c_max:.3g} s, below the stiffness' {dt_stiff:.3g} s")
     n_steps = int(math.ceil(2 * math.pi / w0 / dt))
     t, a = damped_wave(ctx, "damped_verlet", model, m3, k, ctr, region, dt, n_steps, "velocity-verlet",
                        f"Baraff-Witkin sheet, damping ratio {cfg.damping_ratio:g}: P wave along the warp, velocity "
-                       "Verlet", profile(m3.vertices))
+                       "Verlet", shape)
     w_m, g_m = fit_decay(t, a, w0)
     w_s, g_s = velocity_verlet_damped_rates(w2h, ch, dt)
     dt_be = BE_OMEGA_DT / w0
     t2, a2 = damped_wave(ctx, "damped_backward_euler", model, m3, k, ctr, region, dt_be, BE_STEPS, "backward-euler",
-                         f"the same wave, backward Euler at w dt = {BE_OMEGA_DT:g}", profile(m3.vertices))
+                         f"the same wave, backward Euler at w dt = {BE_OMEGA_DT:g}", shape)
     predicted = backward_euler_damped_sequence(w2h, ch, dt_be, BE_STEPS)
     undamped = backward_euler_damped_sequence(w2h, 0.0, dt_be, BE_STEPS)
     seen = a2 / a2[0]
