@@ -197,12 +197,14 @@ def stage_waves(ctx):
         half = 2 * half   # its step couples the whole sheet: the edges would disturb the disc by 1e-4 (5e-6 at twice)
     n = square_domain_cells(half, 1.0) + 1
     m2, m3, ctr, region = wave_grid(n, "one-way", r)
-    model, _ = membrane_model(m3, cfg.rho, "stvk", Y=cfg.Y, nu=cfg.nu)
+    def build(mesh):   # the continuum triangle, on the run's sheet and on the Bloch patch alike
+        return membrane_model(mesh, cfg.rho, "stvk", Y=cfg.Y, nu=cfg.nu)
+    model, _ = build(m3)
     mass = model.mass
     exps, measured, predicted, fits = [], {}, {}, []
     span = RUN_PERIODS * lam / cS
     method = ctx.integrator_name("velocity-verlet")
-    grid = lattice_modes("one-way", lambda mesh: membrane_model(mesh, cfg.rho, "stvk", Y=cfg.Y, nu=cfg.nu))
+    grid = lattice_modes("one-way", build)
     for label, (d, slug) in DIRECTIONS.items():
         for wave, c_theory in (("P", cP), ("S", cS)):
             if wave == "S" and label not in ("x", "diagonal (1,1)"):
