@@ -6,9 +6,11 @@ cloth (work the engine can reuse across steps is counted).
 
 Each test is one comparison row, its contenders timed interleaved in rounds (bench/interleave.py):
 
-* ``test_backward_euler_direct``: the direct solvers at one size: engine PARDISO and Eigen LL^T,
-  numpy + PARDISO (analysis once), ``pypardiso.spsolve``, CHOLMOD, and PARDISO's numeric
-  factorisation + solve of the same matrix alone (``pardiso-factor``: no assembly, no check);
+* ``test_backward_euler_direct``: the direct solvers at one size: engine PARDISO (mixed precision:
+  f32 factorisation refined in f64 to the tolerance) and Eigen LL^T, numpy + PARDISO (analysis
+  once), ``pypardiso.spsolve``, CHOLMOD, and PARDISO's numeric factorisation + solve of the same
+  matrix alone, in f64 (``pardiso-factor``: no assembly, no check) and with the engine's technique
+  (``pardiso-factor-mixed``: f32 factorisation, f64 refinement to the same tolerance);
 * ``test_backward_euler_iterative``: engine PCG, scipy CG and pyamg + CG at one tolerance;
 * ``test_backward_euler_sequence``: 60 consecutive steps, engine PARDISO and numpy + PARDISO;
 * ``test_membrane_direct``, ``test_membrane_iterative``: the same step of the cloth's mesh with a
@@ -19,7 +21,8 @@ Every timed single step starts from the same state (config.cloth_start_state, re
 clock) after one untimed step of the same contender (compilation, the pattern, PARDISO's symbolic
 analysis: what a run does once per model).  Iterative solvers run at the relative residual tol
 (1e-5 and 1e-8 in f64; in f32, which cannot reach 1e-5, the first of 1e-4, 3e-4, 1e-3 that it
-reaches; recorded); direct solvers reach ~1e-13 whatever tol.  The peers are f64 and timed in the
+reaches; recorded); the f64 direct solvers reach ~1e-13 whatever tol, the engine's PARDISO
+(mixed precision) refines to the tolerance.  The peers are f64 and timed in the
 2-thread f64 process only.  What every contender computes is checked in bench/test_correctness.py.
 """
 import numpy as np
@@ -124,9 +127,13 @@ def _peer(c, impl, tol, steps=1):
         return None, reason
     base = _baseline(c)
     x0, v0 = config.cloth_start_state(c)
-    if name == "pardiso-factor":
-        f = peers.FactorOnly(base, x0, v0, DT)
-        return Contender(impl, f.run, info=dict(solver="pardiso", tol=tol, library_only=True)), None
+    if name in ("pardiso-factor", "pardiso-factor-mixed"):
+        precision = "mixed" if name.endswith("mixed") else "double"
+        f = peers.FactorOnly(base, x0, v0, DT, precision=precision, tol=tol)
+        after = (lambda: {"residual": f.last["residual"], "linear_iterations": f.last["iterations"]}) \
+            if precision == "mixed" else None
+        return Contender(impl, f.run, after=after,
+                         info=dict(solver="pardiso", precision=precision, tol=tol, library_only=True)), None
     peer = peers.SparsePeer(name, base, tol=tol)
     x, v = x0.copy(), v0.copy()
 
@@ -177,8 +184,8 @@ def _pcg_traffic(row, info):
         r["info"]["bytes"] = traffic.implicit_step_bytes(info["n"], info["m"], info["h"], it, fb)
 
 
-DIRECT = ("engine-pardiso", "engine-cholesky", "peer-pardiso", "peer-pardiso-factor", "peer-pardiso-spsolve",
-          "peer-cholmod")
+DIRECT = ("engine-pardiso", "engine-cholesky", "peer-pardiso", "peer-pardiso-factor", "peer-pardiso-factor-mixed",
+          "peer-pardiso-spsolve", "peer-cholmod")
 ITERATIVE = ("engine-pcg", "scipy", "peer-pyamg-cg")
 
 

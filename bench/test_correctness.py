@@ -186,6 +186,22 @@ def test_pardiso_factorisation_alone_solves_the_peers_system():
     assert np.linalg.norm(b - peers.product(A, y, upper=True)) <= 1e-10 * np.linalg.norm(b)
 
 
+@pytest.mark.parametrize("tol", [1e-5, 1e-10])
+def test_pardiso_mixed_alone_reaches_the_tolerance_of_the_same_system(tol):
+    """The library row of the engine's own technique (f32 factorisation, f64 refinement) solves the
+    same f64 system to ``tol``: its true residual is at or below it, at 1e-10 only after refinement
+    (an f32 solve alone is ~1e-6..1e-4 off), and it agrees with the f64 solve to cond x tol."""
+    peers, c, x0, v0, dt, base = _sparse_peer_case("pardiso")
+    exact = peers.FactorOnly(base, x0, v0, dt).run()
+    f = peers.FactorOnly(base, x0, v0, dt, precision="mixed", tol=tol)
+    y = f.run()
+    A, b = base.implicit_system(x0, v0, dt, upper=True)
+    residual = np.linalg.norm(b - peers.product(A, y, upper=True)) / np.linalg.norm(b)
+    assert residual <= tol and f.last["residual"] == pytest.approx(residual, rel=1e-6, abs=1e-15)
+    assert f.last["iterations"] >= (2 if tol < 1e-7 else 1)
+    assert np.linalg.norm(y - exact) <= 1e4 * tol * np.linalg.norm(exact)
+
+
 @pytest.mark.parametrize("name", ["scipy-cg", "pyamg-cg", "pardiso", "pardiso-spsolve", "cholmod"])
 def test_sparse_peers_solve_the_engines_system(name):
     """Each implicit contender (bench/peers/sparse.py) solves the engine's backward-Euler system:

@@ -175,7 +175,9 @@ def test_interleaved_rows_give_per_round_ratios(tmp_path):
     b.append(_interleaved("cloth-implicit-step", "row-direct",
                           {"engine-pardiso": (e_imp, dict(solver="pardiso", tol=1e-5)),
                            "peer-pardiso": (p_imp, dict(solver="pardiso", tol=1e-5)),
-                           "peer-pardiso-factor": ([0.5] * 5, dict(solver="pardiso", tol=1e-5, library_only=True))},
+                           "peer-pardiso-factor": ([0.5] * 5, dict(solver="pardiso", tol=1e-5, library_only=True)),
+                           "peer-pardiso-factor-mixed": ([0.25] * 5, dict(solver="pardiso", precision="mixed",
+                                                                          tol=1e-5, library_only=True))},
                           **cl))
     (raw / "bench-t2-f64.json").write_text(json.dumps(dict(benchmarks=b)))
     doc = report.build(raw)
@@ -192,10 +194,16 @@ def test_interleaved_rows_give_per_round_ratios(tmp_path):
     assert imp["ratio"] == pytest.approx(per_round[2])
     assert imp["spread"] == pytest.approx((per_round[0], per_round[-1])) and imp["resolved"] is False
     assert "not resolved" in report.ratios.ratio_text(imp)
-    lib = ratios["library"]
-    assert lib["peer"] == "peer-pardiso-factor" and lib["ratio"] == pytest.approx(2.0)
+    lib = {p["peer"]: p for p in doc["peer_ratios"] if p["kind"] == "library"}
+    assert lib["peer-pardiso-factor"]["ratio"] == pytest.approx(2.0)     # per round: 1.0/0.5, 1.2/0.5, ...
+    assert lib["peer-pardiso-factor-mixed"]["ratio"] == pytest.approx(4.0)
+    assert lib["peer-pardiso-factor-mixed"]["what"].startswith("PARDISO f32 factorisation")
     md = report.markdown(doc, "x-")
     assert "not resolved" in md and "PARDISO factorisation + solve alone" in md
+    assert "PARDISO f32 factorisation + f64 refinement alone" in md
+    # the target is read against the f64 factorisation alone (64^2 here: <= 1.0), never the mixed row
+    t = [t for t in doc["targets"] if t["name"].startswith("implicit step against PARDISO")]
+    assert len(t) == 2 and t[1]["met"] is False and "pardiso-factor " in t[1]["measured"]
 
 
 def test_a_rerun_is_checked_against_the_reference_spread(tmp_path):

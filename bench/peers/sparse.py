@@ -11,10 +11,12 @@ matrix built), as the engine checks its own with a matrix-free product:
 ``pyamg-cg``        pyamg smoothed aggregation (3x3 blocks, the three rigid translations as
                     near-null-space modes), rebuilt every step (the matrix changes), as the
                     preconditioner of CG to ``tol``;
-``pardiso``         MKL PARDISO (pypardiso's ctypes binding) with the engine's settings
-                    (engine.solvers.PARDISO_IPARMS: SPD, METIS nested dissection, no refinement
-                    inside, the same thread count): the symbolic analysis once, outside the clock,
-                    the numeric factorisation and solve every step;
+``pardiso``         MKL PARDISO with the engine's settings (engine.solvers.PARDISO_IPARMS: SPD,
+                    METIS nested dissection, no refinement inside, the same thread count), called
+                    through its C entry point with the index arrays made once, as the engine calls
+                    it (engine.solvers.pardiso.Pardiso; pypardiso's own call rebuilds them at every
+                    call): the symbolic analysis once, outside the clock, the numeric factorisation
+                    and solve every step;
 ``pardiso-spsolve`` pypardiso.spsolve(A, b) as its README shows it (analysis on every call);
 ``cholmod``         CHOLMOD through cholespy (the CHOLMOD wheel pip installs; scikit-sparse has no
                     wheel and needs SuiteSparse headers).  cholespy has no refactorisation entry
@@ -23,7 +25,10 @@ matrix built), as the engine checks its own with a matrix-free product:
 
 :class:`FactorOnly` is no step at all: PARDISO's numeric factorisation and solve of one fixed
 matrix (analysis once, no assembly, no check): what the library alone costs, so that a reader
-sees what an engine adds around it.
+sees what an engine adds around it.  ``FactorOnly(..., precision="mixed")`` is the engine's own
+technique called directly: PARDISO's f32 factorisation and back-substitution, then f64
+refinement steps (f32 back-substitution of the f64 residual of the f64 matrix) until the relative
+residual is at or below ``tol``: the library alone, doing what the engine's solver does.
 
 Direct solvers reach ~1e-13, so ``tol`` applies to the iterative ones only.  Each step records
 its assembly, set-up (analysis, hierarchy or factorisation) and solve seconds and the true
@@ -40,7 +45,8 @@ import scipy.sparse.linalg
 PEERS = ("scipy-cg", "pyamg-cg", "pardiso", "pardiso-spsolve", "cholmod")
 REANALYSES = {"pardiso-spsolve": "analysis every call (pypardiso.spsolve)",
               "cholmod": "analysis every step (cholespy cannot refactorise)"}
-_MODULE = {"pyamg-cg": "pyamg", "pardiso": "pypardiso", "pardiso-spsolve": "pypardiso", "cholmod": "cholespy"}
+_MODULE = {"pyamg-cg": "pyamg", "pardiso": "pypardiso", "pardiso-spsolve": "pypardiso", "cholmod": "cholespy",
+           "pardiso-factor": "pypardiso", "pardiso-factor-mixed": "pypardiso"}
 
 
 def available(name: str) -> str | None:
@@ -82,8 +88,7 @@ class SparsePeer:
             raise RuntimeError(reason)
         self.name, self.cloth, self.tol = name, cloth, float(tol)
         self.last: dict = {}
-        self._pardiso = _pardiso_solver() if name.startswith("pardiso") else None
-        self._analysed = False
+        self._pardiso = _pardiso_solver() if name == "pardiso-spsolve" else None
 
     def system(self, x, v, dt):
         return self.cloth.implicit_system(x, v, dt, upper=self.name.startswith("pardiso"))
@@ -110,19 +115,15 @@ class SparsePeer:
             y = ml.solve(b, tol=self.tol, accel="cg", maxiter=1000, residuals=res)
             return y, setup, max(len(res) - 1, 0)
         if self.name == "pardiso":
-            S = self._pardiso
-            bb = np.asfortranarray(b.reshape(-1, 1))
-            if not self._analysed:   # once per pattern: a step of a real run does not repeat it
-                S._check_A(A)
-                S.set_phase(11)
-                S._call_pardiso(A, bb)
-                self._analysed = True
+            if self._pardiso is None:   # once per pattern (the matrix is built once): not repeated by a run
+                from engine.solvers.pardiso import Pardiso
+                self._pardiso = Pardiso(A.indptr, A.indices, _threads())
+                self._pardiso.analyse(A.data)
             t0 = time.perf_counter()
-            S.set_phase(22)
-            S._call_pardiso(A, bb)
+            if not self._pardiso.factorize(A.data):
+                raise RuntimeError("PARDISO: the matrix is not positive definite")
             setup = time.perf_counter() - t0
-            S.set_phase(33)
-            return S._call_pardiso(A, bb).reshape(-1), setup, 1
+            return self._pardiso.solve(b), setup, 1
         if self.name == "pardiso-spsolve":
             S = self._pardiso
             S.factorized_A = scipy.sparse.csr_matrix((0, 0))  # a new matrix every step: analysis + factorisation
@@ -185,29 +186,42 @@ def _pardiso_solver():
 
 class FactorOnly:
     """PARDISO's numeric factorisation + solve of one fixed matrix (the cloth's system at (x, v)),
-    the analysis done once at construction: the library's own cost per step, nothing around it."""
+    the analysis done once at construction: the library's own cost per step, nothing around it.
+    ``precision="mixed"``: f32 factorisation and back-substitution refined in f64 to ``tol`` (the
+    engine's technique, engine.solvers.PardisoSolver), through the same binding."""
 
-    def __init__(self, cloth, x, v, dt):
+    def __init__(self, cloth, x, v, dt, precision: str = "double", tol: float = 1e-5, refinements: int = 6):
         reason = available("pardiso")
         if reason:
             raise RuntimeError(reason)
-        self.A, b = cloth.implicit_system(x, v, dt, upper=True)
-        self.b = np.asfortranarray(b.reshape(-1, 1))
-        self.S = _pardiso_solver()
-        self.S._check_A(self.A)
-        self.S.set_phase(11)
-        self.S._call_pardiso(self.A, self.b)
+        from engine.solvers.pardiso import Pardiso
+        self.A, self.b = cloth.implicit_system(x, v, dt, upper=True)
+        self.mixed = precision == "mixed"
+        self.tol, self.refinements = float(tol), int(refinements)
+        self.S = Pardiso(self.A.indptr, self.A.indices, _threads(), single=self.mixed)
+        self.S.analyse(self.A.data)
+        self._diag = self.A.diagonal()
         self.y = None
+        self.last = {}
 
     def run(self):
-        self.S.set_phase(22)
-        self.S._call_pardiso(self.A, self.b)
-        self.S.set_phase(33)
-        self.y = self.S._call_pardiso(self.A, self.b).reshape(-1)
-        return self.y
-
-    def __del__(self):
-        try:
-            self.S.free_memory(everything=True)
-        except Exception:
-            pass
+        if not self.S.factorize(self.A.data):
+            raise RuntimeError("PARDISO: the matrix is not positive definite")
+        y = self.S.solve(self.b)
+        steps = 1
+        if self.mixed:
+            from engine.solvers.direct import norm, upper_product
+            nb = norm(self.b)
+            while True:
+                r = self.b - upper_product(self.A, y, self._diag)
+                residual = norm(r) / nb
+                if residual <= self.tol:
+                    break
+                if steps > self.refinements:
+                    raise RuntimeError(f"f32 PARDISO refined {self.refinements} times: residual {residual:.2e} "
+                                       f"> tol {self.tol:.0e}")
+                y = y + self.S.solve(r)
+                steps += 1
+            self.last = dict(residual=residual, iterations=steps)
+        self.y = y
+        return y

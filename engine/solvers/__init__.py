@@ -60,12 +60,17 @@ Four names share one interface (:func:`make_solver`):
               residual (L3) is checked with a matrix-free product; up to two steps of
               iterative refinement are taken if it is above the tolerance.
 ``pardiso``   direct sparse LL^T with MKL PARDISO (supernodal, nested dissection, multi-threaded;
-              the optional ``fast`` extra: pypardiso + mkl, x86-64).  The UPPER triangle of A is
-              written into a CSR pattern fixed per model (:class:`engine.solvers.assembly.CSRPattern`,
-              numpy set-up once) by one gather kernel per energy (a parallel loop over block
-              rows, each row written by one thread: no atomics, bitwise reproducible); the
-              symbolic analysis (ordering, elimination tree) is done once per model and only
-              the numeric factorisation per solve.  Residual check and refinement as cholesky.
+              the optional ``fast`` extra: pypardiso + mkl, x86-64), called through its C entry
+              point with index arrays made once (:mod:`engine.solvers.pardiso`).  The UPPER triangle
+              of A is written into a CSR pattern fixed per model
+              (:class:`engine.solvers.assembly.CSRPattern`, numpy set-up once) by one gather kernel
+              per energy (a parallel loop over block rows, each row written by one thread: no
+              atomics, bitwise reproducible); the symbolic analysis (ordering, elimination tree) is
+              done once per model and only the numeric factorisation per solve.  Mixed precision by
+              default: PARDISO factorises and back-substitutes in f32 and the solution is refined in
+              f64 against the f64 matrix until the residual (L3) is at or below the tolerance; when
+              f32 cannot get there (its factorisation fails, refinement stalls: cond(A) near
+              1/eps_f32) the same matrix is factorised in f64 (``precision="double"``: always).
 ``direct``    pardiso when it can be loaded, cholesky otherwise (the name the benchmark and the
               explicit-vs-implicit lesson use for "the fastest direct solve installed").
 

@@ -12,6 +12,10 @@ from engine.model import Model
 from engine.solvers.assembly import (CSRPattern, assemble_energy, assemble_mass, assemble_rows, init_rows,
                                      triplet_capacity)
 from engine.solvers.operator import LinearSolver, LinearSolveInfo, apply_plan, hessian_plan, scaled_operator, element_terms
+from engine.solvers.pardiso import PARDISO_IPARMS, Pardiso, pardiso_available
+
+__all__ = ["DirectSolver", "CholeskySolver", "PardisoSolver", "PARDISO_IPARMS", "pardiso_available", "upper_product",
+           "norm", "PRECISIONS"]
 
 
 def upper_product(U, y: np.ndarray, diag: np.ndarray | None = None) -> np.ndarray:
@@ -27,10 +31,15 @@ def norm(a: np.ndarray) -> float:
     return math.sqrt(float(np.square(a).sum()))
 
 
+STALL = 0.5   # a refinement step must at least halve the residual, or refinement has stalled
+
+
 class DirectSolver(LinearSolver):
     """A sparse direct solve of (L1)-(L2), shared by the backends: assemble A' = A/c, factorise,
     back-substitute, then check the residual (L3) with the matrix-free product and take up to
-    ``refinements`` steps of iterative refinement while it is above the tolerance.  A subclass
+    ``refinements`` steps of iterative refinement while it is above the tolerance and falls by at
+    least STALL per step; past them, ``_escalate`` may give a more accurate factorisation of the same
+    A' to start again from (PARDISO's mixed precision: f64 after f32).  A subclass
     gives ``_factorize(model, entry, x, a', psd, extra) -> bool`` (False: A' is not positive
     definite) and ``_backsolve(entry, rhs) -> solution`` (numpy, 3n).  ``last_timings`` holds the
     last solve's seconds: assembly, factorization, solve (back-substitutions and refinement)."""
@@ -52,6 +61,11 @@ class DirectSolver(LinearSolver):
 
     def _backsolve(self, entry: dict, rhs: np.ndarray) -> np.ndarray:
         raise NotImplementedError
+
+    def _escalate(self, model: Model, entry: dict) -> bool:
+        """Replace the factorisation of the A' just assembled by a more accurate one (True), or say
+        there is none (False: the solve ends with the residual it has).  Here: none."""
+        return False
 
     def _product(self, model: Model, entry: dict, x, a_s: float, psd: bool, extra):
         """``product(sol, y) -> A' sol`` (numpy, 3n) for the residual check; ``y`` holds sol as a
@@ -86,14 +100,23 @@ class DirectSolver(LinearSolver):
         sol = np.asarray(self._backsolve(entry, rhs), dtype=np.float64).reshape(-1)
         y.from_numpy(sol.reshape(-1, 3).astype(float_dtype()))
         product = self._product(model, entry, x, a / c, psd, scaled_operator(extra, c))
-        it = 1
+        it, previous = 1, math.inf
         while True:
             res = rhs - product(sol, y)  # rhs - A' sol
             res[~free] = 0.0
             residual = norm(res) / bnorm
-            if residual <= self.tol or it > self.refinements or not np.isfinite(residual):
+            if residual <= self.tol:
                 break
-            sol = sol + np.asarray(self._backsolve(entry, res), dtype=np.float64).reshape(-1)  # refinement
+            # refinement has run its course: too many steps, stalled (the factor is too far from A') or
+            # overflowed; a solver with a more accurate factorisation of the same A' starts again from it
+            if it > self.refinements or not residual < STALL * previous:
+                if not self._escalate(model, entry):
+                    break
+                sol = np.asarray(self._backsolve(entry, rhs), dtype=np.float64).reshape(-1)
+                previous = math.inf
+            else:
+                sol = sol + np.asarray(self._backsolve(entry, res), dtype=np.float64).reshape(-1)  # refinement
+                previous = residual
             y.from_numpy(sol.reshape(-1, 3).astype(float_dtype()))
             it += 1
         self.last_timings["solve"] = time.perf_counter() - t1
@@ -158,95 +181,40 @@ class CholeskySolver(DirectSolver):
         return entry["solver"].solve(rhs)
 
 
-# PARDISO's settings (1-based iparm, value): user iparms, METIS nested dissection, no iterative
-# refinement inside (the caller checks and refines), pivot perturbation 1e-8, no weighted matching,
-# the default factorisation kernel, no matrix check, CSR (not transposed)
-PARDISO_IPARMS = ((1, 1), (2, 2), (8, 0), (10, 8), (13, 0), (24, 0), (27, 0), (12, 0))
-
-
-class _Pardiso:
-    """One MKL PARDISO instance (through pypardiso's ctypes binding) for a fixed CSR pattern:
-    real symmetric positive definite (mtype 2), nested-dissection ordering; the symbolic
-    analysis (phase 11) once, the numeric factorisation (phase 22) per solve, back-substitution
-    (phase 33).  Frees its memory when dropped."""
-
-    def __init__(self, matrix, threads: int):
-        import ctypes
-        _quiet_openmp()
-        import pypardiso
-        self.S = pypardiso.PyPardisoSolver(mtype=2)
-        for i, v in PARDISO_IPARMS:
-            self.S.set_iparm(i, v)
-        for name in ("MKL_Set_Num_Threads", "mkl_set_num_threads"):
-            fn = getattr(self.S.libmkl, name, None)
-            if fn is not None:
-                fn(ctypes.c_int(int(threads)))
-                break
-        self.A = matrix
-        self._zero = np.zeros((matrix.shape[0], 1))
-        self._call(11)
-
-    def _call(self, phase: int, b=None):
-        self.S.set_phase(phase)
-        return self.S._call_pardiso(self.A, self._zero if b is None else np.asfortranarray(b.reshape(-1, 1)))
-
-    def factorize(self) -> bool:
-        import pypardiso
-        try:
-            self._call(22)
-        except pypardiso.pardiso_wrapper.PyPardisoError:
-            return False
-        return True
-
-    def solve(self, rhs):
-        return self._call(33, rhs).reshape(-1)
-
-    def __del__(self):
-        try:
-            self.S.free_memory(everything=True)
-        except Exception:
-            pass
-
-
-def _quiet_openmp() -> None:
-    """MKL's OpenMP threads sleep as soon as a factorisation ends instead of spinning for 200 ms
-    (KMP_BLOCKTIME's default): the Taichi kernels that follow (assembly, the residual check) need
-    the same two cores.  Measured on the 64^2 cloth, one solve: 188-228 ms against 250-270 ms.
-    Must be set before MKL's OpenMP runtime starts; a value the user set is kept."""
-    import os
-    os.environ.setdefault("KMP_BLOCKTIME", "0")
-
-
-def pardiso_available() -> bool:
-    """True when MKL PARDISO can be loaded (the optional ``fast`` extra: pypardiso + mkl)."""
-    global _PARDISO_OK
-    if _PARDISO_OK is None:
-        _quiet_openmp()
-        try:
-            import pypardiso
-            pypardiso.PyPardisoSolver()
-            _PARDISO_OK = True
-        except Exception:
-            _PARDISO_OK = False
-    return _PARDISO_OK
-
-
-_PARDISO_OK: bool | None = None
+PRECISIONS = ("mixed", "double")
+MIXED_REFINEMENTS = 6   # f32 factor: each refinement step gains ~1e-4..1e-5 on the cloths (64^2, 128^2)
 
 
 class PardisoSolver(DirectSolver):
     """Sparse LL^T with MKL PARDISO (supernodal, multi-threaded).  The upper triangle of A' is
     assembled into a CSR pattern fixed per model (:class:`engine.solvers.assembly.CSRPattern`: one gather
     kernel per energy, a parallel loop over block rows, no atomics, bitwise reproducible), the
-    symbolic analysis is done once per model and only the numeric factorisation per solve."""
+    symbolic analysis is done once per model and only the numeric factorisation per solve.
+
+    ``precision="mixed"`` (the default): PARDISO factorises and back-substitutes in f32 and the
+    solution is refined in f64 against the f64 A' (the residual (L3) of the f64 system, as always)
+    until it is at or below ``tol``: on the hanging cloths (64^2-128^2, dt = 1/60 s) the f32 solve
+    starts at ~6e-5 and one refinement step reaches ~3e-8, two ~2e-11, and the f32 factorisation
+    takes ~0.6 of the f64 one.  When the f32 factorisation fails, refinement stalls (the f32 factor
+    is too far from A': a condition number near 1/eps_f32) or has not reached ``tol`` after
+    MIXED_REFINEMENTS steps, the same A' is factorised in f64 and the solve starts again from it
+    (``escalations`` counts those solves).  ``precision="double"``: f64 only; reaches ~1e-13
+    whatever tol."""
 
     name = "pardiso"
 
-    def __init__(self, tol: float = 1e-8, max_iter: int = 1000, refinements: int = 2):
+    def __init__(self, tol: float = 1e-8, max_iter: int = 1000, refinements: int | None = None,
+                 precision: str = "mixed"):
         if not pardiso_available():
             raise ValueError("solver 'pardiso' needs MKL PARDISO, which is not installed: "
                              "pip install 'elastic-lessons[fast]' (x86-64), or use solver 'direct' or 'cholesky'")
+        if precision not in PRECISIONS:
+            raise ValueError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
+        self.precision = precision
+        if refinements is None:
+            refinements = MIXED_REFINEMENTS if precision == "mixed" else 2
         super().__init__(tol, max_iter, refinements)
+        self.escalations = 0
 
     def _setup(self, model: Model) -> dict:
         entry = super()._setup(model)
@@ -273,16 +241,36 @@ class PardisoSolver(DirectSolver):
         ti.sync()
         return values
 
+    def _instance(self, entry: dict, single: bool) -> Pardiso:
+        """The PARDISO instance of this precision for the model's pattern (analysed at its first use)."""
+        key = "pardiso32" if single else "pardiso"
+        if key not in entry:
+            A = entry["matrix"]
+            entry[key] = Pardiso(A.indptr, A.indices, entry["_pardiso_threads"], single=single)
+        return entry[key]
+
     def _factorize(self, model, entry, x, a_s, psd, extra) -> bool:
         t0 = time.perf_counter()
         self.assemble_values(model, entry, x, a_s, psd, extra)
         entry["_assembly_s"] = time.perf_counter() - t0
-        if "pardiso" not in entry:
-            entry["pardiso"] = _Pardiso(entry["matrix"], entry["_pardiso_threads"])  # analysis, once
-        return entry["pardiso"].factorize()
+        values = entry["matrix"].data
+        if self.precision == "mixed":
+            entry["current"] = self._instance(entry, True)
+            if entry["current"].factorize(values):
+                return True
+            self.escalations += 1       # not positive definite in f32: try f64
+        entry["current"] = self._instance(entry, False)
+        return entry["current"].factorize(values)
+
+    def _escalate(self, model, entry) -> bool:
+        if not entry["current"].single:
+            return False
+        self.escalations += 1
+        entry["current"] = self._instance(entry, False)
+        return entry["current"].factorize(entry["matrix"].data)
 
     def _backsolve(self, entry, rhs):
-        return entry["pardiso"].solve(rhs)
+        return entry["current"].solve(rhs)
 
     def _product(self, model, entry, x, a_s, psd, extra):
         """A' sol from the upper triangle U just factorised (U sol + U^T sol - diag(U) sol): the same

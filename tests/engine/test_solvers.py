@@ -72,7 +72,8 @@ SOLVER_VARIANTS = {
     "pcg-parallel": lambda tol: solvers.PCGSolver(tol, 1000, serial=False),              # 3 launches / iteration
     "pcg-generic": lambda tol: solvers.PCGSolver(tol, 1000, fused=False),                 # per-energy products
     "cholesky": lambda tol: make_solver("cholesky", tol=tol),
-    "pardiso": lambda tol: make_solver("pardiso", tol=tol),
+    "pardiso": lambda tol: make_solver("pardiso", tol=tol),                               # f32 factor, f64 refinement
+    "pardiso-double": lambda tol: solvers.PardisoSolver(tol, precision="double"),
     "direct": lambda tol: make_solver("direct", tol=tol),
 }
 NO_PARDISO = "MKL PARDISO not installed (pip install -e '.[fast]')"
@@ -81,7 +82,7 @@ DIRECT = ["cholesky", pytest.param("pardiso", marks=needs_pardiso)]
 
 
 def _variants():
-    return [pytest.param(v, marks=needs_pardiso) if v == "pardiso" else v for v in SOLVER_VARIANTS]
+    return [pytest.param(v, marks=needs_pardiso) if v.startswith("pardiso") else v for v in SOLVER_VARIANTS]
 
 
 def membrane(model_name="baraff-witkin", N=6, seed=2):
@@ -131,6 +132,9 @@ def test_solvers_agree_with_dense_reference(scene, variant):
     assert np.all(yy[~free] == 0.0)
     if variant.startswith("pcg"):
         assert 1 <= info.iterations < 200
+    elif solver.name == "pardiso" and solver.precision == "mixed":
+        # an f32 factorisation alone cannot reach 1e-10: at least one f64 refinement step was taken
+        assert 2 <= info.iterations <= 1 + solver.refinements and solver.escalations == 0, info
     else:
         assert info.iterations == 1 and info.residual < 1e-13
 
@@ -325,3 +329,56 @@ def test_a_membrane_takes_the_fused_pcg_paths():
     blocks = {}
     solvers.operator.hessian_plan(two, x_nd, True, None, blocks)
     assert solver._fused_setup(two, solver._work(two), x_nd, True, blocks) is None
+
+
+def _graded_chain(decades: float, n: int = 40, seed: int = 3):
+    """A chain of n unit masses (node 0 pinned) whose springs' stiffnesses span ``decades`` decades
+    (log-uniform), slightly deformed, and a random right-hand side: cond(a M + H) ~ 10^decades."""
+    X = np.stack([np.linspace(0, 1, n), np.zeros(n), np.zeros(n)], 1)
+    rng = np.random.default_rng(seed)
+    k = 10.0 ** rng.uniform(0, decades, n - 1)
+    model = Model.from_springs(X, np.stack([np.arange(n - 1), np.arange(1, n)], 1), k=k, mass=np.ones(n),
+                               pinned=[0], gravity=[0, 0, -9.81])
+    x_nd = vec3_ndarray(n, X + 0.01 * rng.standard_normal(X.shape))
+    return model, x_nd, vec3_ndarray(n, rng.standard_normal((n, 3)))
+
+
+@needs_pardiso
+@pytest.mark.parametrize("decades, escalates", [(4, False), (8, True)])
+def test_mixed_precision_pardiso_refines_or_escalates(decades, escalates):
+    """PARDISO's mixed precision: an f32 factorisation refined in f64 reaches the tolerance on the
+    f64 system when cond(A) is well below 1/eps_f32 ~ 1.7e7 (cond 6e5: several refinement steps, no
+    f64 factorisation); above it (cond 7e9) f32 refinement cannot converge, the same matrix is
+    factorised in f64 (one escalation) and the result is the f64 solver's."""
+    model, x_nd, b = _graded_chain(decades)
+    A, free = dense_system(model, x_nd, 1.0)
+    cond = np.linalg.cond(A)
+    assert (cond > 1e9) if escalates else (1e5 < cond < 1e7), cond
+    tol = 1e-6 if escalates else 1e-10
+    out = {}
+    for precision in ("mixed", "double"):
+        solver = solvers.PardisoSolver(tol, precision=precision)
+        y = vec3_ndarray(model.n)
+        info = solver.solve(model, x_nd, b, y, 1.0)
+        yy = y.to_numpy().reshape(-1)
+        res_dense = np.linalg.norm(A @ yy[free] - b.to_numpy().reshape(-1)[free]) / np.linalg.norm(
+            b.to_numpy().reshape(-1)[free])
+        # a residual is evaluated to ~ eps ||A|| ||y|| / ||b|| (round-off of the product): equal to that
+        bf = b.to_numpy().reshape(-1)[free]
+        floor = 8 * np.finfo(float).eps * np.linalg.norm(A, 2) * np.linalg.norm(yy[free]) / np.linalg.norm(bf)
+        assert info.converged and res_dense <= tol and abs(res_dense - info.residual) <= floor, (info, floor)
+        out[precision] = (info, solver.escalations, yy)
+    info, escalations, yy = out["mixed"]
+    assert escalations == (1 if escalates else 0)
+    if escalates:   # the f64 factorisation of the same matrix, then its own solve: the double solver's answer
+        assert np.array_equal(yy, out["double"][2])
+    else:
+        assert info.iterations >= 3        # f32 alone is ~eps_f32 cond ~ 0.06 off: refinement did the work
+        err = np.linalg.norm(yy[free] - out["double"][2][free]) / np.linalg.norm(out["double"][2][free])
+        assert err <= cond * 2 * tol
+
+
+@needs_pardiso
+def test_pardiso_precision_is_checked():
+    with pytest.raises(ValueError, match="precision must be one of mixed, double, got 'half'"):
+        solvers.PardisoSolver(1e-8, precision="half")

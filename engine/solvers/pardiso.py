@@ -1,0 +1,137 @@
+"""MKL PARDISO called through its C entry point, for one fixed CSR pattern (the optional ``fast``
+extra: pypardiso + mkl, x86-64).
+
+pypardiso loads MKL and declares ``pardiso``'s ctypes signature; this module calls that entry
+point itself because pypardiso's own call (a) accepts only double precision values and (b) builds
+the 1-based row and column index arrays again on every call (at 256^2, 4.6 million entries: two
+copies of 18 MB per factorisation and per back-substitution).  Here the index arrays are made once
+per pattern, and the values may be handed over in single precision (iparm(28) = 1): PARDISO then
+factorises and back-substitutes in f32, about 1.5x faster on this mesh family (64^2 to 128^2, 2
+threads), and the caller refines the solution in f64 against the f64 matrix
+(:class:`engine.solvers.direct.PardisoSolver`).
+
+:class:`Pardiso` is used by the engine's solver and, the same binding, by the benchmark's
+"PARDISO alone" rows (bench/peers/sparse.py), so that the library's own cost is measured through
+the same calls the engine makes.
+"""
+import ctypes
+import os
+
+import numpy as np
+
+# PARDISO's settings (1-based iparm, value): user iparms, METIS nested dissection, no iterative
+# refinement inside (the caller checks and refines), pivot perturbation 1e-8, no weighted matching,
+# the default factorisation kernel, no matrix check, CSR (not transposed)
+PARDISO_IPARMS = ((1, 1), (2, 2), (8, 0), (10, 8), (13, 0), (24, 0), (27, 0), (12, 0))
+SINGLE_PRECISION_IPARM = 28   # iparm(28) = 1: the values, right-hand sides and solutions are f32
+
+
+def quiet_openmp() -> None:
+    """MKL's OpenMP threads sleep as soon as a factorisation ends instead of spinning for 200 ms
+    (KMP_BLOCKTIME's default): the Taichi kernels that follow (assembly, the residual check) need
+    the same two cores.  Measured on the 64^2 cloth, one solve: 188-228 ms against 250-270 ms.
+    Must be set before MKL's OpenMP runtime starts; a value the user set is kept."""
+    os.environ.setdefault("KMP_BLOCKTIME", "0")
+
+
+def pardiso_available() -> bool:
+    """True when MKL PARDISO can be loaded (the optional ``fast`` extra: pypardiso + mkl)."""
+    global _PARDISO_OK
+    if _PARDISO_OK is None:
+        quiet_openmp()
+        try:
+            import pypardiso
+            pypardiso.PyPardisoSolver()
+            _PARDISO_OK = True
+        except Exception:
+            _PARDISO_OK = False
+    return _PARDISO_OK
+
+
+_PARDISO_OK: bool | None = None
+
+
+class PardisoError(RuntimeError):
+    """PARDISO returned a non-zero error code (its number and phase in the message)."""
+
+
+class Pardiso:
+    """One PARDISO instance for the symmetric positive definite matrix whose UPPER triangle has
+    the CSR pattern (``indptr``, ``indices``; 0-based, sorted, diagonal first in each row):
+    ``analyse(values)`` (phase 11: ordering and symbolic factorisation, once per pattern),
+    ``factorize(values) -> bool`` (phase 22; False when PARDISO reports a zero or negative pivot),
+    ``solve(rhs) -> x`` (phase 33; f64 in and out whatever the precision).  ``single``: factorise
+    and back-substitute in f32 (the values are copied to f32 at each factorisation).  Frees
+    PARDISO's memory when dropped."""
+
+    def __init__(self, indptr: np.ndarray, indices: np.ndarray, threads: int = 2, single: bool = False):
+        quiet_openmp()
+        import pypardiso
+        self._lib = pypardiso.PyPardisoSolver(mtype=2)   # loads MKL, holds pt, iparm and the entry point
+        for i, v in PARDISO_IPARMS:
+            self._lib.set_iparm(i, v)
+        self.single = bool(single)
+        self._lib.set_iparm(SINGLE_PRECISION_IPARM, 1 if self.single else 0)
+        for name in ("MKL_Set_Num_Threads", "mkl_set_num_threads"):
+            fn = getattr(self._lib.libmkl, name, None)
+            if fn is not None:
+                fn(ctypes.c_int(int(threads)))
+                break
+        self.dtype = np.float32 if self.single else np.float64
+        self.n = len(indptr) - 1
+        self._ia = np.ascontiguousarray(np.asarray(indptr) + 1, dtype=np.int32)   # 1-based, once
+        self._ja = np.ascontiguousarray(np.asarray(indices) + 1, dtype=np.int32)
+        self._values = np.zeros(len(indices), dtype=self.dtype)
+        self._b = np.zeros(self.n, dtype=self.dtype)
+        self._x = np.zeros(self.n, dtype=self.dtype)
+        self.analysed = False
+
+    def _call(self, phase: int) -> int:
+        error = ctypes.c_int32(0)
+        i32 = ctypes.POINTER(ctypes.c_int32)
+        lib = self._lib
+        lib._mkl_pardiso(lib.pt.ctypes.data_as(ctypes.POINTER(lib._pt_type[0])),
+                         ctypes.byref(ctypes.c_int32(1)), ctypes.byref(ctypes.c_int32(1)),   # maxfct, mnum
+                         ctypes.byref(ctypes.c_int32(2)), ctypes.byref(ctypes.c_int32(phase)),   # mtype SPD
+                         ctypes.byref(ctypes.c_int32(self.n)),
+                         self._values.ctypes.data_as(ctypes.c_void_p), self._ia.ctypes.data_as(i32),
+                         self._ja.ctypes.data_as(i32), lib.perm.ctypes.data_as(i32),
+                         ctypes.byref(ctypes.c_int32(1)), lib.iparm.ctypes.data_as(i32),   # nrhs
+                         ctypes.byref(ctypes.c_int32(0)),                                   # msglvl
+                         self._b.ctypes.data_as(ctypes.c_void_p), self._x.ctypes.data_as(ctypes.c_void_p),
+                         ctypes.byref(error))
+        return int(error.value)
+
+    def _set(self, values: np.ndarray) -> None:
+        np.copyto(self._values, values, casting="same_kind")
+
+    def analyse(self, values: np.ndarray) -> None:
+        self._set(values)
+        err = self._call(11)
+        if err != 0:
+            raise PardisoError(f"PARDISO analysis (phase 11) failed with error {err}")
+        self.analysed = True
+
+    def factorize(self, values: np.ndarray) -> bool:
+        if not self.analysed:
+            self.analyse(values)
+        self._set(values)
+        err = self._call(22)
+        if err in (-4, -3):   # zero pivot / not positive definite (-4), reordering problem (-3)
+            return False
+        if err != 0:
+            raise PardisoError(f"PARDISO factorisation (phase 22) failed with error {err}")
+        return True
+
+    def solve(self, rhs: np.ndarray) -> np.ndarray:
+        np.copyto(self._b, rhs, casting="same_kind")
+        err = self._call(33)
+        if err != 0:
+            raise PardisoError(f"PARDISO back-substitution (phase 33) failed with error {err}")
+        return self._x.astype(np.float64)
+
+    def __del__(self):
+        try:
+            self._lib.free_memory(everything=True)
+        except Exception:
+            pass
