@@ -78,11 +78,21 @@ def element_assembler(k: int, block):
     return assemble
 
 
+def _block_source(energy, blocks) -> tuple:
+    """(ti.func block, its data) of an element term: the energy's stored blocks, or the rank-one
+    factors of :class:`engine.solvers.operator.RankOneFactors`."""
+    from engine.solvers.operator import RankOneFactors, rank_one_block
+    if isinstance(blocks, RankOneFactors):
+        return rank_one_block, blocks.w
+    return type(energy).block, blocks
+
+
 def assemble_energy(A, energy, blocks, inv_mass, scale: float) -> None:
-    """A += scale H of ``energy`` from ``blocks`` = energy.hessian_blocks(x, psd) (lower triangle)."""
+    """A += scale H of ``energy`` from ``blocks`` = energy.hessian_blocks(x, psd) or its rank-one
+    factors (lower triangle)."""
     if energy.n_elements:
-        element_assembler(energy.stencil_size, type(energy).block)(A, energy.elements, blocks, inv_mass,
-                                                                   float(scale))
+        block, data = _block_source(energy, blocks)
+        element_assembler(energy.stencil_size, block)(A, energy.elements, data, inv_mass, float(scale))
 
 
 def triplet_capacity(model) -> int:
@@ -255,8 +265,10 @@ def row_assembler(k: int, block):
 
 
 def assemble_rows(pattern: CSRPattern, values, energy, blocks, scale: float) -> None:
-    """values += scale H of ``energy`` from ``blocks`` = energy.hessian_blocks(x, psd) (P1)."""
+    """values += scale H of ``energy`` from ``blocks`` = energy.hessian_blocks(x, psd) or its
+    rank-one factors (P1)."""
     if energy.n_elements:
         c_ptr, c_elem, c_code, c_pos = pattern.contributions[id(energy)]
-        row_assembler(energy.stencil_size, type(energy).block)(values, pattern.indptr_nd, c_ptr, c_elem, c_code,
-                                                               c_pos, blocks, float(scale))
+        block, data = _block_source(energy, blocks)
+        row_assembler(energy.stencil_size, block)(values, pattern.indptr_nd, c_ptr, c_elem, c_code, c_pos, data,
+                                                  float(scale))

@@ -162,7 +162,7 @@ class CholeskySolver(DirectSolver):
                     N, N, max_num_triplets=2 * entry["capacity"] - 3 * model.n, dtype=ti.f64)
             B = entry["builder2"]
         assemble_mass(B, model.mass_nd, model.inv_mass_nd, a_s)
-        for scale, e, blocks in element_terms(model, x, psd, extra):
+        for scale, e, blocks in element_terms(model, x, psd, extra, entry.setdefault("factors", {})):
             assemble_energy(B, e, blocks, model.inv_mass_nd, scale)
         return B.build()  # empties the builder; lower triangle of the symmetric A' only
 
@@ -236,7 +236,7 @@ class PardisoSolver(DirectSolver):
         pattern, A = entry["pattern"], entry["matrix"]
         values = A.data  # the kernels write the CSR values in place (a numpy array: no copy on the CPU)
         init_rows(values, pattern.indptr_nd, model.mass_nd, model.inv_mass_nd, a_s)
-        for scale, e, blocks in element_terms(model, x, psd, extra):
+        for scale, e, blocks in element_terms(model, x, psd, extra, entry.setdefault("factors", {})):
             assemble_rows(pattern, values, e, blocks, scale)
         ti.sync()
         return values
