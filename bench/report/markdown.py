@@ -215,7 +215,7 @@ def _kernels_md(rows) -> list:
 
 
 IMPLICIT_IMPLS = ("engine-pardiso", "engine-cholesky", "engine-pcg", "peer-pardiso", "peer-pardiso-factor",
-                  "peer-pardiso-spsolve", "peer-cholmod", "peer-pyamg-cg", "scipy")
+                  "peer-pardiso-factor-mixed", "peer-pardiso-spsolve", "peer-cholmod", "peer-pyamg-cg", "scipy")
 
 
 def _peers_md(doc) -> list:
@@ -230,7 +230,9 @@ def _peers_md(doc) -> list:
          "is faster), the median over the rounds, with the spread of the per-round ratios (smallest-largest); a "
          "row whose spread contains 1 is marked not resolved. "
          "The *library* rows set the engine's whole step against PARDISO's numeric factorisation + solve of the "
-         "same matrix alone (analysis once, no assembly, no check): what the engine adds around the library. "
+         "same matrix alone (analysis once, no assembly, no check): in f64 (pardiso-factor, the row the targets "
+         "are read against) and with the engine's own technique, an f32 factorisation refined in f64 to the same "
+         "tolerance (pardiso-factor-mixed): what the engine adds around the library. "
          "floor = the engine row's bandwidth floor time (bench/traffic.py), where a traffic model exists.", ""]
     if not ratios:
         return L + ["Not measured.", ""]
@@ -255,8 +257,10 @@ def _implicit_md(rows) -> list:
          "block-Jacobi, Eigen LL^T, MKL PARDISO; peers: numpy assembly into a precomputed pattern, then scipy CG "
          "(Jacobi), pyamg smoothed aggregation + CG, PARDISO (analysis once; spsolve: every call), CHOLMOD "
          "(cholespy: analysis every step, it cannot refactorise); pardiso-factor: PARDISO's factorisation + solve "
-         "of the same matrix alone (no assembly, no check). Iterative solvers to the relative residual shown; "
-         "direct ones reach ~1e-13 (one row). The direct contenders of a size are one interleaved row, the "
+         "of the same matrix alone (no assembly, no check); pardiso-factor-mixed: the same in f32, refined in f64 "
+         "to the tolerance (the engine's PARDISO technique, alone). Iterative solvers to the relative residual "
+         "shown; the f64 direct ones reach ~1e-13, the engine's PARDISO (f32 factorisation, f64 refinement) "
+         "stops at the tolerance (one row). The direct contenders of a size are one interleaved row, the "
          "iterative ones of a size and tolerance another; left out of a row: said below the table.", ""]
 
     def table_rows(cfg, sides, group="cloth-implicit-step"):

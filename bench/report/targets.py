@@ -140,6 +140,12 @@ def _why_explicit(rows, side, step) -> list:
         peers = ", ".join(f"{p['impl']} {p['ns_per_vertex']:.1f}" for p in peers if p and p.get("ns_per_vertex"))
         why.append(f"Without bending the engine's step is {sp['ns_per_vertex']:.1f} ns/vertex"
                    + (f" (the peers' in the same run: {peers})." if peers else "."))
+    launch = {k: find(rows, config="t2-f64", group="launch-cost", impl=k) for k in ("engine",) + EXPLICIT_PEERS}
+    if launch["engine"]:
+        calls = ", ".join(f"{k} {r['per_step_s'] * 1e6:.1f} us" for k, r in launch.items() if r)
+        why.append(f"A call of a one-item kernel with the step's arguments (bench/test_bench_launch.py, 64^2 arrays): "
+                   f"{calls}. The engine's one-step-per-call rows pay its launch once per step; at 64^2 that is a "
+                   f"large part of the whole step, and the 10-steps-per-call rows pay it once per 10 steps.")
     f32 = find(rows, config="t2-f32", group="cloth-explicit-step", impl="engine", model="springs+bending", side=side)
     if f32:
         why.append(f"In f32 the same step is {f32['ns_per_vertex']:.1f} ns/vertex.")
@@ -178,9 +184,13 @@ def _why_implicit(rows, ratios) -> list:
             line += f"; PARDISO's factorisation + solve alone {lib['per_step_s'] * 1e3:.1f} ms"
         why.append(line + ".")
     if sides:
-        why.append("Both factorise with the same library and settings, so the engine's margin is its assembly (a "
-                   "parallel Taichi gather into a pattern fixed per model, against numpy's single-threaded scatter) "
-                   "and a residual check without a second matrix.")
+        why.append("The engine's PARDISO factorises in f32 and refines in f64 to the tolerance (two f32 "
+                   "back-substitutions and two residual products at 1e-5 on this cloth); numpy + PARDISO factorises in "
+                   "f64. Beside that, the engine's margin is its assembly (a parallel Taichi gather into a pattern "
+                   "fixed per model, the hinges from their Gauss-Newton factors, against numpy's single-threaded "
+                   "scatter) and a residual check without a second matrix. Against PARDISO alone (the library rows) "
+                   "it adds the assembly, the forces and the update; against pardiso-factor-mixed, the same "
+                   "technique called alone, that is all it adds.")
     return why
 
 
@@ -193,7 +203,9 @@ def _why_sequence(ratios) -> list:
     why.append("Reusing a factorisation across steps as the preconditioner of CG was measured on the 64^2 hanging "
                "cloth (E = 1e3 N/m, dt = 1/60 s): CG with the previous step's PARDISO factor needed 12-31 iterations "
                "to reach 1e-5 (refreshed when above 15), and one back-substitution costs about 1/15-1/7 of a "
-               "numeric factorisation, so reuse costs as much as refactorising: the engine refactorises every step.")
+               "numeric factorisation, so reuse costs as much as refactorising: the engine refactorises every step. "
+               "From the benchmark's start state (swinging at 0.2 m/s, bulged 5 cm) it is worse: CG with the first "
+               "step's factor needed 57, 90, 102, 116 and 124 iterations over the next five steps (64^2).")
     return why
 
 
