@@ -25,6 +25,11 @@ offers to the PCG solver (:mod:`engine.solvers`):
 ``"element-blocks"`` :meth:`hessian_blocks` is (m, k*k) mat3 with H_e,ab at [e, k a + b] (membranes):
                    the PCG's fused paths multiply each element's blocks by the direction and
                    gather the products per vertex over ``slot_incidence``.
+``"deformation-blocks"`` (with "element-blocks", triangles): :meth:`deformation_blocks(x, psd)` is
+                   (m, 3) mat3, the Hessian by the deformation gradient's columns, and the
+                   ti.func ``deformation_product(fblocks, Dinv, elements, z, p, beta, yt, e)``
+                   writes yt[e, a] = (H_e (z + beta p))_a from them and the rest frames ``Dinv``
+                   (the energy's): the PCG's fused paths use it instead of the stored blocks.
 """
 import numpy as np
 import taichi as ti
@@ -56,7 +61,7 @@ class Energy:
     n_elements: int = 0         # m
     elements = None             # (max(m, 1), k) i32 ndarray of element vertices
     block = None                # ti.func block(blocks, e, a: template, b: template) -> mat3 H_e,ab
-    products: frozenset = frozenset()  # of "blocks", "pair-gather", "rank-one", "element-blocks"
+    products: frozenset = frozenset()  # of "blocks", "pair-gather", "rank-one", "element-blocks", "deformation-blocks"
     # How the explicit fast kernels can take its forces (engine.integrators.cloth_kernels): "pair-gather"
     # (spring_gather over force_args()), "slot-gather" (a per-element pass, then a per-vertex gather
     # over force_args(): hinge_force_vectors + hinge_gather), "corner-gather" (a kernel of its own,

@@ -13,7 +13,8 @@ corner incidence (entry = 3 triangle + corner), deterministic, as the hinge ener
 import taichi as ti
 
 from engine.energies.base import slot_gather
-from engine.energies.triangle import block_ab, condition_gradients, mat2, membrane_terms, triangle_frame
+from engine.energies.triangle import (block_ab, condition_gradients, deformation_blocks, mat2, membrane_terms,
+                                     triangle_frame)
 from engine.fields import int_array, mat3_array2, scalar_array, vec3_array, vec3_array2
 from engine.fields import int_array2 as triangle_array
 
@@ -82,6 +83,40 @@ def membrane_hessian_kernel(x: vec3_array, tris: triangle_array, Dinv: ti.types.
                     out[t, 3 * a + b] = block_ab(model, psd, wu, wv, g[a], g[b], S, area[t], p0[t], p1[t])
                 elif ti.static(a == b):
                     out[t, a] = block_ab(model, psd, wu, wv, g[a], g[a], S, area[t], p0[t], p1[t])
+
+
+@ti.kernel
+def membrane_deformation_blocks_kernel(x: vec3_array, tris: triangle_array, Dinv: ti.types.ndarray(dtype=mat2, ndim=1),
+                                       area: scalar_array, p0: scalar_array, p1: scalar_array, model: ti.template(),
+                                       psd: ti.template(), out: mat3_array2):
+    # out[t] = (A_uu, A_uv, A_vv) of triangle t (triangle.deformation_blocks)
+    for t in range(tris.shape[0]):
+        wu, wv, g, W, S, Pu, Pv = _triangle(x, tris, Dinv, area, p0, p1, model, t)
+        Auu, Auv, Avv = deformation_blocks(model, psd, wu, wv, S, area[t], p0[t], p1[t])
+        out[t, 0] = Auu
+        out[t, 1] = Auv
+        out[t, 2] = Avv
+
+
+@ti.func
+def deformation_product(fblocks: ti.template(), Dinv: ti.template(), tris: ti.template(), z: ti.template(),
+                        p: ti.template(), beta, yt: ti.template(), t):
+    """yt[t, a] = (H_t d)_a for d = z + beta p at the triangle's corners, from its deformation blocks
+    (triangle.deformation_blocks): dw_j = sum_b g_bj d_b, r_i = sum_j A_ij dw_j, (H d)_a = sum_i g_ai r_i."""
+    D = Dinv[t]
+    d0 = z[tris[t, 0]] + beta * p[tris[t, 0]]
+    d1 = z[tris[t, 1]] + beta * p[tris[t, 1]] - d0
+    d2 = z[tris[t, 2]] + beta * p[tris[t, 2]] - d0
+    dwu = d1 * D[0, 0] + d2 * D[1, 0]          # g0 = -(g1 + g2): sum_b g_bj d_b = g1j (d1 - d0) + g2j (d2 - d0)
+    dwv = d1 * D[0, 1] + d2 * D[1, 1]
+    Auv = fblocks[t, 1]
+    ru = fblocks[t, 0] @ dwu + Auv @ dwv
+    rv = Auv.transpose() @ dwu + fblocks[t, 2] @ dwv
+    y1 = D[0, 0] * ru + D[0, 1] * rv
+    y2 = D[1, 0] * ru + D[1, 1] * rv
+    yt[t, 0] = -(y1 + y2)
+    yt[t, 1] = y1
+    yt[t, 2] = y2
 
 
 @ti.kernel

@@ -170,6 +170,45 @@ def block_ab(model: ti.template(), psd: ti.template(), wu, wv, ga, gb, S, A, p0,
 
 
 @ti.func
+def deformation_blocks(model: ti.template(), psd: ti.template(), wu, wv, S, A, p0, p1):
+    """(A_uu, A_uv, A_vv): the triangle's Hessian by F's columns, d2W/dw_i dw_j (3x3 each; A_vu = A_uv^T),
+    of which every block (M1)/(M2) is a combination, H_ab = sum_ij g_ai g_bj A_ij:
+
+        St. Venant-Kirchhoff  A_ij = A [ S_ij I + lambda w_i w_j^T + mu delta_ij F F^T + mu w_j w_i^T ]
+        Baraff-Witkin         A_uu = A [ k_s K_u + k_h w_v w_v^T ],  A_vv = A [ k_s K_v + k_h w_u w_u^T ],
+                              A_uv = A k_h [ w_v w_u^T + s I ]  (s I: exact only)
+
+    with the same PSD variants as :func:`block_ab` (S's positive part; K's clipped coefficient, no s I).
+    27 numbers per triangle instead of the 81 of its nine blocks: the product H p of one triangle is
+    F's differential dw_j = sum_b g_bj p_b, then r_i = sum_j A_ij dw_j, then (H p)_a = sum_i g_ai r_i."""
+    I3 = ti.math.eye(3)
+    Auu, Auv, Avv = ti.math.mat3(0.0), ti.math.mat3(0.0), ti.math.mat3(0.0)
+    if ti.static(model == STVK):
+        mu, lam = p0, p1
+        Sp = S
+        if ti.static(psd):
+            Sp = positive_part(S)
+        FFt = wu.outer_product(wu) + wv.outer_product(wv)
+        Auu = A * (Sp[0, 0] * I3 + (lam + mu) * wu.outer_product(wu) + mu * FFt)
+        Avv = A * (Sp[1, 1] * I3 + (lam + mu) * wv.outer_product(wv) + mu * FFt)
+        Auv = A * (Sp[0, 1] * I3 + lam * wu.outer_product(wv) + mu * wv.outer_product(wu))
+    else:
+        ks, kh = p0, p1
+        lu, lv, s = wu.norm(), wv.norm(), wu.dot(wv)
+        nu_, nv_ = wu / lu, wv / lv
+        cu, cv = 1.0 - 1.0 / lu, 1.0 - 1.0 / lv
+        if ti.static(psd):
+            cu, cv = ti.max(cu, 0.0), ti.max(cv, 0.0)
+        Pu, Pv = nu_.outer_product(nu_), nv_.outer_product(nv_)
+        Auu = A * (ks * (Pu + cu * (I3 - Pu)) + kh * wv.outer_product(wv))
+        Avv = A * (ks * (Pv + cv * (I3 - Pv)) + kh * wu.outer_product(wu))
+        Auv = A * kh * wv.outer_product(wu)
+        if ti.static(not psd):
+            Auv += A * kh * s * I3
+    return Auu, Auv, Avv
+
+
+@ti.func
 def condition_gradients(wu, wv, g, A):
     """dC/dx_a of Baraff-Witkin's three conditions for the corners a = 0, 1, 2: (stretch u,
     stretch v, shear) lists of vec3, (M2)."""

@@ -7,8 +7,8 @@ import taichi as ti
 
 from engine.constants import SERIAL_BELOW
 from engine.energies.base import slot_gather
-from engine.fields import (free_dot, int_array, int_array2, mat3_array, mat3_array2, scalar_array, vec3_array,
-                           vec3_array2, vec3_ndarray, zero_pinned, zero_vec3)
+from engine.fields import (free_dot, int_array, int_array2, mat2_array, mat3_array, mat3_array2, scalar_array,
+                           vec3_array, vec3_array2, vec3_ndarray, zero_pinned, zero_vec3)
 from engine.model import Model
 from engine.solvers.operator import LinearSolver, LinearSolveInfo, apply_plan, hessian_plan, scaled_operator
 
@@ -105,24 +105,29 @@ def _add_rank_one(qi, i, b_off: ti.template(), b_ent: ti.template(), w: ti.templ
 
 
 @ti.func
-def _element_product(blocks: ti.template(), elements: ti.template(), z: ti.template(), p: ti.template(), beta,
-                     yt: ti.template(), e, k: ti.template()):
-    # yt[e, a] = sum_b H_e,ab (z + beta p)[element vertex b]: one element's blocks (layout (m, k*k))
-    for a in ti.static(range(k)):
-        acc = ti.math.vec3(0.0)
-        for b in ti.static(range(k)):
-            v = elements[e, b]
-            acc += blocks[e, k * a + b] @ (z[v] + beta * p[v])
-        yt[e, a] = acc
+def _element_product(blocks: ti.template(), dinv: ti.template(), elements: ti.template(), z: ti.template(),
+                     p: ti.template(), beta, yt: ti.template(), e, k: ti.template(), form: ti.template()):
+    # yt[e, a] = sum_b H_e,ab (z + beta p)[element vertex b]: form 0, one element's stored blocks (layout
+    # (m, k*k)); otherwise form is the energy's deformation_product ti.func, blocks its deformation blocks
+    # (m, 3) and dinv its rest frames ("deformation-blocks", engine/energies/base.py)
+    if ti.static(form == 0):
+        for a in ti.static(range(k)):
+            acc = ti.math.vec3(0.0)
+            for b in ti.static(range(k)):
+                v = elements[e, b]
+                acc += blocks[e, k * a + b] @ (z[v] + beta * p[v])
+            yt[e, a] = acc
+    else:
+        form(blocks, dinv, elements, z, p, beta, yt, e)
 
 
 @ti.kernel
-def _element_products(blocks: mat3_array2, elements: int_array2, z: vec3_array, p: vec3_array, beta: float,
-                      yt: vec3_array2, k: ti.template(), serial: ti.template()):
+def _element_products(blocks: mat3_array2, dinv: mat2_array, elements: int_array2, z: vec3_array, p: vec3_array,
+                      beta: float, yt: vec3_array2, k: ti.template(), form: ti.template(), serial: ti.template()):
     # per element, its blocks times the new direction z + beta p (formed on the fly)
     ti.loop_config(serialize=serial)
     for e in range(elements.shape[0]):
-        _element_product(blocks, elements, z, p, beta, yt, e, k)
+        _element_product(blocks, dinv, elements, z, p, beta, yt, e, k, form)
 
 
 @ti.kernel
@@ -185,9 +190,9 @@ def _pcg_whole_serial(beta0: float, rz0: float, target2: float, max_iter: ti.i32
                       mass: scalar_array, inv_mass: scalar_array, a: float, Pinv: mat3_array,
                       s_off: int_array, s_edge: int_array, s_other: int_array, s_blocks: mat3_array,
                       elements: int_array2, n_elements: ti.i32, b_off: int_array, b_ent: int_array,
-                      w: vec3_array2, s: scalar_array, c_blocks: mat3_array2, c_elements: int_array2,
-                      c_n: ti.i32, c_off: int_array, c_ent: int_array, yt: vec3_array2,
-                      k: ti.template(), kc: ti.template()) -> ti.math.vec3:
+                      w: vec3_array2, s: scalar_array, c_blocks: mat3_array2, c_dinv: mat2_array,
+                      c_elements: int_array2, c_n: ti.i32, c_off: int_array, c_ent: int_array, yt: vec3_array2,
+                      k: ti.template(), kc: ti.template(), form: ti.template()) -> ti.math.vec3:
     # The whole CG loop in one serial kernel (small problems: no launch or argument overhead per
     # iteration).  Starts from r, z, p set by _pcg_restart (beta0 = 0).  Same arithmetic as the
     # fused path: p = z + beta p ; q = A' p ; alpha = r.z / p.q ; y += alpha p ; r -= alpha q ;
@@ -208,7 +213,7 @@ def _pcg_whole_serial(beta0: float, rz0: float, target2: float, max_iter: ti.i32
                 acc += w[e, sl].dot(p[elements[e, sl]])
             s[e] = acc
         for e in range(c_n):
-            _element_product(c_blocks, c_elements, p, p, 0.0, yt, e, kc)
+            _element_product(c_blocks, c_dinv, c_elements, p, p, 0.0, yt, e, kc, form)
         pq = 0.0
         for i in range(n):
             pi = p[i]
@@ -287,6 +292,7 @@ class PCGSolver(LinearSolver):
             entry["no_rank"] = dict(elements=ti.ndarray(dtype=ti.i32, shape=(1, 1)), n=0, k=1, off=off, ent=i1,
                                     w=v11, s=ti.ndarray(dtype=float, shape=1))
             entry["no_elem"] = dict(blocks=ti.ndarray(dtype=ti.math.mat3, shape=(1, 1)),
+                                    dinv=ti.ndarray(dtype=ti.math.mat2, shape=1), form=0,
                                     elements=ti.ndarray(dtype=ti.i32, shape=(1, 1)), n=0, k=1, off=off, ent=i1,
                                     yt=v11)
         pair = entry["no_pair"]
@@ -311,7 +317,10 @@ class PCGSolver(LinearSolver):
                 off, ent = e.slot_incidence
                 entry[key] = dict(elements=e.elements, n=e.n_elements, k=e.stencil_size, off=off, ent=ent,
                                   yt=ti.ndarray(dtype=ti.math.vec3, shape=(e.n_elements, e.stencil_size)))
-            elem = dict(entry[key], blocks=blocks[id(e)])
+            if "deformation-blocks" in e.products:   # 27 numbers per triangle per iteration instead of 81
+                elem = dict(entry[key], blocks=e.deformation_blocks(x, psd), dinv=e.Dinv, form=e.deformation_product)
+            else:
+                elem = dict(entry[key], blocks=blocks[id(e)], dinv=entry["no_elem"]["dinv"], form=0)
         return pair, rank, elem
 
     def solve(self, model: Model, x, b, y, mass_coef: float, hess_coef: float = 1.0,
@@ -352,8 +361,9 @@ class PCGSolver(LinearSolver):
                 pair, rk, el = fused
                 k_it, rr, bad = _pcg_whole_serial(0.0, rz, target2, self.max_iter - it, z, p, q, r, y, mass,
                                                   inv_mass, a_s, Pinv, *pair, rk["elements"], rk["n"], rk["off"],
-                                                  rk["ent"], rk["w"], rk["s"], el["blocks"], el["elements"],
-                                                  el["n"], el["off"], el["ent"], el["yt"], rk["k"], el["k"])
+                                                  rk["ent"], rk["w"], rk["s"], el["blocks"], el["dinv"],
+                                                  el["elements"], el["n"], el["off"], el["ent"], el["yt"], rk["k"],
+                                                  el["k"], el["form"])
                 it += int(k_it)
                 if bad:
                     message = "A is not positive definite on a search direction (p.Ap <= 0)"
@@ -363,7 +373,8 @@ class PCGSolver(LinearSolver):
                     if rk["n"]:
                         _rank_one_s(rk["w"], rk["elements"], z, p, beta, rk["s"], rk["k"], serial)
                     if el["n"]:
-                        _element_products(el["blocks"], el["elements"], z, p, beta, el["yt"], el["k"], serial)
+                        _element_products(el["blocks"], el["dinv"], el["elements"], z, p, beta, el["yt"], el["k"],
+                                          el["form"], serial)
                     pq = _fused_direction_product(beta, z, p, p2, q, mass, inv_mass, a_s, *pair, rk["off"],
                                                   rk["ent"], rk["w"], rk["s"], el["off"], el["ent"], el["yt"],
                                                   rk["k"], el["k"], serial)
