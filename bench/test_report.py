@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from bench import report, traffic
+from bench import config, report, traffic
 from bench.machine import machine_info
 
 
@@ -336,3 +336,27 @@ def test_quick_report_says_the_rows_it_skips_by_design_are_skipped():
     doc["profile"] = "full"
     f32 = [t for t in report.targets(doc) if t["name"].startswith("explicit step") and t["name"].endswith("t2-f32")]
     assert all(t["measured"] == "not measured (needs the peers: pip install -e '.[peers]')" for t in f32)
+
+
+def test_the_membrane_pcg_is_set_against_scipy_cg_at_its_tolerance(tmp_path):
+    """The membrane's iterative row gives the engine's PCG against scipy CG alone (pyamg, faster here, is
+    not that comparison), per tolerance, and the target reads those ratios: met only where every one's
+    spread is at or under 1."""
+    raw = tmp_path / "raw"
+    raw.mkdir()
+    cl = dict(side=64, n=4096, triangles=7938, model=config.MEMBRANE_MODEL)
+    b = []
+    for tol, pcg in ((1e-5, [0.8, 0.9, 0.85]), (1e-8, [1.2, 1.1, 1.3])):
+        b.append(_interleaved(config.MEMBRANE_IMPLICIT_GROUP, f"row-iterative-{tol}",
+                              {"engine-pcg": (pcg, dict(solver="pcg", tol=tol)),
+                               "scipy": ([1.0] * 3, dict(solver="scipy-cg", tol=tol)),
+                               "peer-pyamg-cg": ([0.5] * 3, dict(solver="pyamg-cg", tol=tol))}, tol=tol, **cl))
+    (raw / "bench-t2-f64.json").write_text(json.dumps(dict(benchmarks=b)))
+    doc = report.build(raw)
+    it = {p["what"]: p for p in doc["peer_ratios"] if p["kind"] == "iterative"}
+    assert set(it) == {f"{config.MEMBRANE_MODEL}, PCG against scipy CG, tol 1e-05",
+                       f"{config.MEMBRANE_MODEL}, PCG against scipy CG, tol 1e-08"}
+    loose = it[f"{config.MEMBRANE_MODEL}, PCG against scipy CG, tol 1e-05"]
+    assert loose["peer"] == "scipy" and loose["ratio"] == pytest.approx(0.85) and loose["spread"] == pytest.approx((0.8, 0.9))
+    t = [t for t in doc["targets"] if t["name"].startswith("membrane backward-Euler step, the engine's PCG")]
+    assert len(t) == 1 and t[0]["met"] is True and "0.85" in t[0]["measured"]

@@ -9,7 +9,8 @@ from bench.report.derive import CONFIGS
 EXPLICIT_PEERS = ("numba", "warp")
 EXPLICIT_MODELS = ("springs+bending", "springs", MEMBRANE_MODEL)   # the models of the explicit rows
 LIBRARY_ROWS = {"peer-pardiso-factor": "PARDISO factorisation + solve alone",
-                "peer-pardiso-factor-mixed": "PARDISO f32 factorisation + f64 refinement alone (the engine's technique)"}
+                "peer-pardiso-factor-mixed":
+                    "PARDISO f32 factorisation + f64 refinement alone (the engine's technique)"}
 STEP_GROUPS = ("cloth-implicit-step", MEMBRANE_IMPLICIT_GROUP)   # one backward-Euler step per call, per solver
 
 
@@ -56,6 +57,16 @@ def peer_ratios(rows: list) -> list:
                 for tol in tols:
                     rs = _implicit_rows(rows, cfg, side, tol, group)
                     out.append(_ratio_entry(kind, cfg, side, f"{model}tol {tol:.0e}", rs, None))
+        # the membrane's PCG against scipy's CG (the same tolerance, the same interleaved row)
+        pcg = [r for r in rows if r.get("config") == cfg and r.get("group") == MEMBRANE_IMPLICIT_GROUP
+               and r.get("impl") == "engine-pcg"]
+        for side in sorted({r["side"] for r in pcg}):
+            for tol in sorted({float(r["tol"]) for r in pcg if r.get("side") == side}, reverse=True):
+                rs = [r for r in _implicit_rows(rows, cfg, side, tol, MEMBRANE_IMPLICIT_GROUP)
+                      if r.get("impl") in ("engine-pcg", "scipy")]
+                if len(rs) == 2:
+                    out.append(_ratio_entry("iterative", cfg, side, f"{MEMBRANE_MODEL}, PCG against scipy CG, "
+                                            f"tol {tol:.0e}", rs, ("scipy",)))
         # the engine's whole step against PARDISO's factorisation + solve of the same matrix alone: in f64
         # (the target) and with the engine's own technique (f32 factorisation refined in f64)
         for side in sorted({r["side"] for r in rows if r.get("config") == cfg and r.get("library_only")}):
