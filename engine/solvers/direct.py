@@ -67,9 +67,11 @@ class DirectSolver(LinearSolver):
         there is none (False: the solve ends with the residual it has).  Here: none."""
         return False
 
+    product_reads_y = True   # the residual product reads y (sol copied into it before each check)
+
     def _product(self, model: Model, entry: dict, x, a_s: float, psd: bool, extra):
         """``product(sol, y) -> A' sol`` (numpy, 3n) for the residual check; ``y`` holds sol as a
-        vec3 ndarray.  Here the matrix-free operator (L1) in Taichi kernels."""
+        vec3 ndarray when ``product_reads_y``.  Here the matrix-free operator (L1) in Taichi kernels."""
         plan = hessian_plan(model, x, psd, extra, work=entry["work"])
         q = entry["q"]
 
@@ -98,7 +100,8 @@ class DirectSolver(LinearSolver):
             zero_vec3(y)
             return self._info(0, 0.0)
         sol = np.asarray(self._backsolve(entry, rhs), dtype=np.float64).reshape(-1)
-        y.from_numpy(sol.reshape(-1, 3).astype(float_dtype()))
+        if self.product_reads_y:
+            y.from_numpy(sol.reshape(-1, 3).astype(float_dtype()))
         product = self._product(model, entry, x, a / c, psd, scaled_operator(extra, c))
         it, previous = 1, math.inf
         while True:
@@ -117,8 +120,11 @@ class DirectSolver(LinearSolver):
             else:
                 sol = sol + np.asarray(self._backsolve(entry, res), dtype=np.float64).reshape(-1)  # refinement
                 previous = residual
-            y.from_numpy(sol.reshape(-1, 3).astype(float_dtype()))
+            if self.product_reads_y:
+                y.from_numpy(sol.reshape(-1, 3).astype(float_dtype()))
             it += 1
+        if not self.product_reads_y:
+            y.from_numpy(sol.reshape(-1, 3).astype(float_dtype()))
         self.last_timings["solve"] = time.perf_counter() - t1
         return self._info(it, residual)
 
@@ -271,6 +277,8 @@ class PardisoSolver(DirectSolver):
 
     def _backsolve(self, entry, rhs):
         return entry["current"].solve(rhs)
+
+    product_reads_y = False   # U sol in numpy: y is written once, at the end
 
     def _product(self, model, entry, x, a_s, psd, extra):
         """A' sol from the upper triangle U just factorised (U sol + U^T sol - diag(U) sol): the same
