@@ -35,6 +35,7 @@ import ast
 import html
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -126,21 +127,19 @@ class Extracted:
     def relabel(self, text: str) -> str:
         """The grader's text about the module made about the notebook: ``x.py: line N`` becomes
         ``x.ipynb: cell C, line L``."""
-        import re
         module = module_file(Path(), self.path.stem).name
-        text = re.sub(re.escape(module) + r": line (\d+)", lambda m: f"{self.path.name}: {self.where(int(m.group(1)))}",
-                      str(text))
+        text = re.sub(re.escape(module) + r"(: |, )line (\d+)",
+                      lambda m: f"{self.path.name}{m.group(1)}{self.where(int(m.group(2)))}", str(text))
         return text.replace(module, self.path.name)
+
+
+IPYTHON_SYNTAX = re.compile(r"^\s*([%!]|[\w.]+\s*=\s*[%!]|[\w.]*\?\??\s*$|\?)")
 
 
 def _magic_line(lines: list[str]) -> int:
     """The first line (from 1) that is IPython's syntax (a magic, a shell escape, ``x = !cmd``,
-    ``name?``), or 0."""
-    for k, line in enumerate(lines, 1):
-        s = line.strip()
-        if s.startswith(("%", "!")) or s.endswith("?") or any(f"= {c}" in s.replace("==", "") for c in "%!"):
-            return k
-    return 0
+    ``name?``), or 0. Asked only of a cell that is not Python: a line of a string is never taken."""
+    return next((k for k, line in enumerate(lines, 1) if IPYTHON_SYNTAX.match(line)), 0)
 
 
 def read_notebook(path: Path) -> Extracted:
