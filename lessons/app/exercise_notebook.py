@@ -81,7 +81,7 @@ def check_source(lesson_id: str) -> str:
 
 def exercise_notebook(lesson, folder: str) -> dict:
     """The exercise of ``lesson`` as a notebook (nbformat 4, as a dict)."""
-    how = (f"run the last cell (save the notebook first: it grades the notebook as saved), or in a terminal:\n\n"
+    how = (f"Run the last cell of this notebook (save it first: it grades the notebook as saved), or in a terminal:\n\n"
            f"    python -m lessons check {lesson.id} --solution {folder}")
     text = instructions(lesson, how)
     title, _, rest = text.partition("\n")
@@ -145,8 +145,12 @@ def _magic_line(lines: list[str]) -> int:
 def read_notebook(path: Path) -> Extracted:
     """The notebook ``path`` as one module (see the module docstring); NotebookError, one line,
     when it is not a notebook."""
-    import nbformat
     path = Path(path)
+    try:
+        import nbformat
+    except ImportError:
+        raise NotebookError(f"{path}: reading a notebook needs nbformat: pip install -e '.[notebook]', or hand in "
+                            f"the module") from None
     try:
         text = path.read_text(encoding="utf-8")
         json.loads(text)
@@ -220,10 +224,10 @@ class CheckReport:
         for r in self.rows:
             titles.setdefault((r.get("stage"), r.get("stage_title") or "your functions, each on its own"), []).append(r)
         for (stage, title), rows in titles.items():
+            text = lambda r, key: html.escape(str(r.get(key) if r.get(key) is not None else ""))  # noqa: E731
             body = "".join(f"<tr><td><b>{'PASS' if r.get('passed') else 'FAIL'}</b></td>"
-                           f"<td style='text-align:left'>{html.escape(str(r.get('claim', '')))}</td>"
-                           f"<td>{html.escape(str(r.get('theory', '')))}</td><td>{html.escape(str(r.get('measured', '')))}"
-                           f"</td><td style='text-align:left'>{html.escape(str(r.get('reason') or ''))}</td></tr>"
+                           f"<td style='text-align:left'>{text(r, 'claim')}</td><td>{text(r, 'theory')}</td>"
+                           f"<td>{text(r, 'measured')}</td><td style='text-align:left'>{text(r, 'reason')}</td></tr>"
                            for r in rows)
             name = f"stage {stage}: {title}" if stage else title
             parts.append(f"<h4>{html.escape(name)}: {sum(bool(r.get('passed')) for r in rows)} of {len(rows)} claims "
