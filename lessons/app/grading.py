@@ -1,6 +1,8 @@
 """``python -m lessons check LESSON --solution DIR``: grade a student's exercise.
 
-For each lesson checked: the student's module ``DIR/<lesson id with _>.py`` is read; each function
+For each lesson checked: the student's module ``DIR/<lesson id with _>.py`` (or, when there is no
+module, the notebook ``DIR/<lesson id with _>.ipynb``, read as one module of its code cells:
+lessons.app.exercise_notebook; both there is bad input) is read; each function
 with an empty body is one line "not written yet"; the module (and its own modules beside it) is
 read for what a solution may not do (lessons.app.sandbox: imports other than numpy, math, cmath,
 taichi and its own; builtins and attributes that reach files, processes or other code); then the
@@ -33,6 +35,7 @@ from pathlib import Path
 from .._exercise import module_file
 from .._framework import Terminated
 from .arguments import UsageError, Parser
+from .exercise_notebook import NotebookError, read_notebook, solution_file
 from .exercises import lessons_with_exercises
 from .grading_lesson import Grader
 from .results import encode, package_version, results_document
@@ -49,7 +52,8 @@ def _parser(ids: list[str]) -> Parser:
         "passes, 1 when one fails."))
     p.add_argument("lesson", metavar="LESSON", help=f"one of {', '.join(ids)}, or all")
     p.add_argument("--solution", metavar="DIR", required=True,
-                   help="the folder with the student's <lesson>.py (written by 'python -m lessons exercise')")
+                   help="the folder with the student's <lesson>.py or <lesson>.ipynb (written by 'python -m lessons "
+                        "exercise')")
     p.add_argument("--stage", type=int, action="append", metavar="N",
                    help="run only this stage of the lesson (repeatable; default: every stage)")
     p.add_argument("--functions-only", action="store_true",
@@ -98,7 +102,7 @@ def _results_target(text: str, solution: Path):
     target = output_target("--results", text, False)
     resolved = Path(os.path.realpath(target.path))
     sol = Path(os.path.realpath(solution))
-    if resolved.parent == sol and (resolved.suffix == ".py" or resolved.is_dir()):
+    if resolved.parent == sol and (resolved.suffix in (".py", ".ipynb") or resolved.is_dir()):
         raise UsageError(f"--results {shown_path(text)} is a file of the solution in {solution}: give the results "
                          f"another name (a .json file)")
     if resolved.suffix == ".py":
@@ -121,13 +125,22 @@ def check(argv: list[str], out=sys.stdout, err=sys.stderr) -> int:
                          f"'python -m lessons exercise {args.lesson}'")
     wanted = [l for l in available if args.lesson in ("all", l.id)]
     if args.lesson == "all":
-        wanted = [l for l in wanted if module_file(solution, l.id).exists()]
+        wanted = [l for l in wanted if solution_file(solution, l.id) is not None]
         if not wanted:
-            raise UsageError(f"--solution {str(solution)!r} holds no lesson module ({', '.join(i.replace('-', '_') + '.py' for i in ids)})")
-    elif not module_file(solution, args.lesson).exists():
+            raise UsageError(f"--solution {str(solution)!r} holds no lesson module or notebook "
+                             f"({', '.join(i.replace('-', '_') + '.py' for i in ids)}, or .ipynb)")
+    elif solution_file(solution, args.lesson) is None:
         raise UsageError(f"{module_file(solution, args.lesson)} does not exist: write it first with "
-                         f"'python -m lessons exercise {args.lesson} {solution}'")
+                         f"'python -m lessons exercise {args.lesson} {solution}' (--notebook: as a notebook)")
     check_stages(wanted, args.stage)
+    notebooks = {}
+    for lesson in wanted:
+        path = solution_file(solution, lesson.id)
+        if path.suffix == ".ipynb":
+            try:
+                notebooks[lesson.id] = read_notebook(path)
+            except NotebookError as exc:
+                raise UsageError(str(exc)) from None
     target = _results_target(args.results, solution) if args.results is not None else None
     if os.environ.get("ELASTIC_GRADE_TASK") == "1":   # a task of 'grade': end (cleanly) with the worker
         _end_with_parent(signal_number=15)
@@ -143,7 +156,8 @@ def check(argv: list[str], out=sys.stdout, err=sys.stderr) -> int:
     try:
         with tempfile.TemporaryDirectory(prefix="elastic-check-") as work:
             for lesson in wanted:
-                grader = Grader(lesson, solution, args.time_limit, out, Path(work), int(args.memory_limit * 2 ** 30))
+                grader = Grader(lesson, solution, args.time_limit, out, Path(work), int(args.memory_limit * 2 ** 30),
+                                notebooks.get(lesson.id))
                 try:
                     grader.functions()
                     if not args.functions_only:

@@ -32,11 +32,20 @@ def _failure(lesson_id: str, stage: int, id: str, claim: str, reason: str) -> di
 class Grader:
     """Grades one lesson's module; collects rows and notes and prints the tables."""
 
-    def __init__(self, lesson, solution_dir: Path, limit: float, out, workdir: Path, memory_bytes: int):
+    def __init__(self, lesson, solution_dir: Path, limit: float, out, workdir: Path, memory_bytes: int,
+                 notebook=None):
+        """``notebook``: the student's notebook read as a module (lessons.app.exercise_notebook.Extracted),
+        graded from a folder of its own in ``workdir``, its lines told as the notebook's cells."""
         self.lesson, self.limit, self.out, self.workdir = lesson, limit, out, workdir
         self.memory = memory_bytes
         self.tasks = exercise_module(lesson).TASKS
         self.path = module_file(solution_dir, lesson.id)
+        self.notebook = notebook
+        if notebook is not None:
+            folder = workdir / f"notebook-{lesson.id}"
+            folder.mkdir()
+            self.path = module_file(folder, lesson.id)
+            self.path.write_text(notebook.source, encoding="utf-8")
         self.rows: list[dict] = []
         self.notes: list[str] = []
         self.flags: list[str] = []              # for the instructor (e.g. a copy of the shipped solution)
@@ -67,7 +76,7 @@ class Grader:
         if not isinstance(notes, list):
             return
         for n in notes[:20]:
-            text = printable(n)[:300] if isinstance(n, str) else ""
+            text = self._shown(printable(n))[:300] if isinstance(n, str) else ""
             if text and text not in self.notes:
                 self.notes.append(text)
 
@@ -83,7 +92,14 @@ class Grader:
             self.server.stop()
 
     # ---------------------------------------------------------------- printing
+    def _shown(self, text: str) -> str:
+        """The grader's text about the module, about the notebook when the solution is one."""
+        return self.notebook.relabel(text) if self.notebook is not None and text else text
+
     def _print_table(self, title: str, rows: list[dict], hint: str = "") -> None:
+        for r in rows:
+            if r.get("reason"):
+                r["reason"] = self._shown(r["reason"])
         self.out.write(f"\n== {self.lesson.id} · {title}\n")
         exps = [_experiment(r) for r in rows]
         self.out.write(text_table(exps) + "\n")
@@ -114,6 +130,17 @@ class Grader:
         def fail(id: str, claim: str, reason: str) -> None:
             rows.append(_failure(lesson, UNIT_STAGE, id, claim, reason))
 
+        if self.notebook is not None:
+            self._note(self.notebook.notes)
+            if self.notebook.unreadable or self.notebook.problems:
+                found = self.notebook.unreadable or self.notebook.problems
+                more = f" (and {len(found) - 1} more)" if len(found) > 1 else ""
+                if self.notebook.unreadable:
+                    fail("ex-module", "your module can be read", found[0] + more)
+                else:
+                    self.refused = found[0] + more
+                    fail("ex-module-rules", "your module keeps to what a solution may do", self.refused)
+                return self._done(rows)
         problem = self._module_problem()
         if problem:
             fail("ex-module", "your module can be read", problem)

@@ -1,7 +1,8 @@
 """``python -m lessons grade ROSTER [LESSON|all]``: grade a whole class.
 
 ROSTER is a folder with one folder per student (its name is the student's id) holding the modules
-the student wrote (``springs.py``, ``bending.py`` ..., and any helper modules beside them). Every
+the student wrote (``springs.py``, ``bending.py`` ..., and any helper modules beside them), or
+their notebooks (``springs.ipynb``: graded as ``check`` grades one, lessons.app.exercise_notebook). Every
 (student, lesson) pair is one task on a Dask cluster: a LocalCluster of ``--workers`` processes on
 this machine by default, or the scheduler at ``--scheduler ADDRESS`` when a class outgrows one
 machine. A task carries the student's files (so a remote worker needs no shared file system), writes
@@ -41,13 +42,14 @@ from pathlib import Path
 from .._exercise import module_file
 from .._framework import Terminated
 from .arguments import UsageError, Parser
+from .exercise_notebook import notebook_file
 from .exercises import lessons_with_exercises
 from .grading import DEFAULT_MEMORY_GB, DEFAULT_TIME_LIMIT_S, check_limits, check_stages
 from .grading_remote import PROJECT_ROOT
 from .results import package_version
 
 STATE = ".grade-state.json"
-MAX_FILE_BYTES = 1 << 20          # a student's module larger than this is not graded
+MAX_FILE_BYTES = 1 << 20          # a student's module (or notebook) larger than this is not graded
 STUDENT_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._@+-]{0,99}$")
 
 
@@ -80,9 +82,10 @@ def _parser(ids: list[str]) -> Parser:
 # ------------------------------------------------------------------ one task: a student and a lesson
 
 def _student_files(folder: Path) -> dict[str, str]:
-    """The student's Python files (name -> text): what a task carries and what its hash covers."""
+    """The student's Python files and notebooks (name -> text): what a task carries and what its hash
+    covers."""
     files = {}
-    for path in sorted(folder.glob("*.py")):
+    for path in sorted([*folder.glob("*.py"), *folder.glob("*.ipynb")]):
         if path.is_file() and path.stat().st_size <= MAX_FILE_BYTES:
             files[path.name] = path.read_text(encoding="utf-8", errors="replace")
     return files
@@ -204,8 +207,8 @@ def feedback(student: str, results: list[dict], expected: dict) -> str:
     for r in sorted(results, key=lambda r: r["lesson"]):
         passed, total, score = _score(r, expected)
         if r["status"] == "missing":
-            lines += [f"## {r['lesson']}: not handed in", "", f"No `{r['lesson'].replace('-', '_')}.py` in your "
-                      f"folder.", ""]
+            lines += [f"## {r['lesson']}: not handed in", "", f"No `{r['lesson'].replace('-', '_')}.py` (or `.ipynb`) "
+                      f"in your folder.", ""]
             continue
         if r["status"] != "graded":
             lines += [f"## {r['lesson']}: could not be graded", "", r["error"], ""]
@@ -286,7 +289,7 @@ def grade(argv: list[str], out=sys.stdout, err=sys.stderr) -> int:
         files = _student_files(folder)
         for lesson in lessons:
             key = (folder.name, lesson.id)
-            if module_file(folder, lesson.id).name not in files:
+            if module_file(folder, lesson.id).name not in files and notebook_file(folder, lesson.id).name not in files:
                 results[key] = {"student": folder.name, "lesson": lesson.id, "rows": [], "notes": [],
                                 "status": "missing", "error": ""}
                 continue

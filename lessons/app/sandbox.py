@@ -54,6 +54,7 @@ BANNED_NAMES = {
     "exit": "ends the process", "quit": "ends the process", "memoryview": "reaches raw memory",
     "__builtins__": "reaches the builtins", "__loader__": "reaches the module loader", "__spec__": "reaches the "
     "module spec", "__file__": "reads where the module lies",
+    "get_ipython": "reaches the notebook's kernel (its magics and shell commands)",
 }
 # attributes that lead to the interpreter, other modules, files or processes (read access refused)
 BANNED_ATTRIBUTES = {
