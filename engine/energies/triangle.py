@@ -136,6 +136,20 @@ def membrane_terms(model: ti.template(), wu, wv, A, p0, p1):
 
 
 @ti.func
+def stretch_stiffness(psd: ti.template(), wu, wv):
+    """(K_u, K_v, s) of Baraff and Witkin's stretch conditions (M2): K = n n^T + (1 - 1/|w|) (I - n n^T)
+    for w_u and w_v, the transverse coefficient clipped at 0 in the PSD variant, and s = w_u . w_v."""
+    I3 = ti.math.eye(3)
+    lu, lv, s = wu.norm(), wv.norm(), wu.dot(wv)
+    nu_, nv_ = wu / lu, wv / lv
+    cu, cv = 1.0 - 1.0 / lu, 1.0 - 1.0 / lv
+    if ti.static(psd):
+        cu, cv = ti.max(cu, 0.0), ti.max(cv, 0.0)
+    Pu, Pv = nu_.outer_product(nu_), nv_.outer_product(nv_)
+    return Pu + cu * (I3 - Pu), Pv + cv * (I3 - Pv), s
+
+
+@ti.func
 def block_ab(model: ti.template(), psd: ti.template(), wu, wv, ga, gb, S, A, p0, p1):
     """H_ab = d2W/dx_a dx_b (3x3) of one triangle, (M1) or (M2), exact or PSD."""
     I3 = ti.math.eye(3)
@@ -152,14 +166,7 @@ def block_ab(model: ti.template(), psd: ti.template(), wu, wv, ga, gb, S, A, p0,
                  + mu * Fb.outer_product(Fa))
     else:
         ks, kh = p0, p1
-        lu, lv, s = wu.norm(), wv.norm(), wu.dot(wv)
-        nu_, nv_ = wu / lu, wv / lv
-        cu, cv = 1.0 - 1.0 / lu, 1.0 - 1.0 / lv
-        if ti.static(psd):
-            cu, cv = ti.max(cu, 0.0), ti.max(cv, 0.0)
-        Pu, Pv = nu_.outer_product(nu_), nv_.outer_product(nv_)
-        Ku = Pu + cu * (I3 - Pu)
-        Kv = Pv + cv * (I3 - Pv)
+        Ku, Kv, s = stretch_stiffness(psd, wu, wv)
         qa = ga[0] * wv + ga[1] * wu
         qb = gb[0] * wv + gb[1] * wu
         H = ks * (ga[0] * gb[0] * Ku + ga[1] * gb[1] * Kv) + kh * qa.outer_product(qb)
@@ -194,14 +201,9 @@ def deformation_blocks(model: ti.template(), psd: ti.template(), wu, wv, S, A, p
         Auv = A * (Sp[0, 1] * I3 + lam * wu.outer_product(wv) + mu * wv.outer_product(wu))
     else:
         ks, kh = p0, p1
-        lu, lv, s = wu.norm(), wv.norm(), wu.dot(wv)
-        nu_, nv_ = wu / lu, wv / lv
-        cu, cv = 1.0 - 1.0 / lu, 1.0 - 1.0 / lv
-        if ti.static(psd):
-            cu, cv = ti.max(cu, 0.0), ti.max(cv, 0.0)
-        Pu, Pv = nu_.outer_product(nu_), nv_.outer_product(nv_)
-        Auu = A * (ks * (Pu + cu * (I3 - Pu)) + kh * wv.outer_product(wv))
-        Avv = A * (ks * (Pv + cv * (I3 - Pv)) + kh * wu.outer_product(wu))
+        Ku, Kv, s = stretch_stiffness(psd, wu, wv)
+        Auu = A * (ks * Ku + kh * wv.outer_product(wv))
+        Avv = A * (ks * Kv + kh * wu.outer_product(wu))
         Auv = A * kh * wv.outer_product(wu)
         if ti.static(not psd):
             Auv += A * kh * s * I3
