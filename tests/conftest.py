@@ -1,5 +1,7 @@
 """Shared fixtures: one Taichi runtime per test session (CPU, 2 threads, f64), and every lesson
-run once per session at its defaults with its recording, for the tests that inspect either."""
+run once per session at its defaults with its recording, for the tests that inspect either. The same
+run also fills a notebook replay store (lessons.app.replay: each stage's results and its recording
+alone), so that executing the generated notebooks does not run the physics again."""
 import io
 from pathlib import Path
 from typing import NamedTuple
@@ -25,12 +27,14 @@ class DefaultRun(NamedTuple):
 @pytest.fixture(scope="session")
 def default_runs(tmp_path_factory):
     """``get(lesson id) -> DefaultRun``: the lesson run once per session at its defaults, as
-    ``python -m lessons run`` records it; the recording tests and the lessons' own tests share it."""
-    from lessons.app import registry
+    ``python -m lessons run`` records it; the recording tests and the lessons' own tests share it.
+    ``get.replay_store``: the folder where each stage of those runs is stored for the notebooks."""
+    from lessons.app import registry, replay
     from lessons._framework import run_lesson
     from lessons.app.cli import make_recorder
 
     out_dir = tmp_path_factory.mktemp("recordings")
+    store = tmp_path_factory.mktemp("notebook-replay")
     made = {}
 
     def get(lesson_id: str) -> DefaultRun:
@@ -38,12 +42,13 @@ def default_runs(tmp_path_factory):
             lesson = registry.get(lesson_id)
             path = out_dir / f"{lesson.id}.rrd"
             rec = make_recorder(lesson, path)
+            tee = replay.StageTee(rec, lambda i: make_recorder(lesson, replay.entry_paths(store, lesson.id, i)[1]))
             collected = {}
             try:
-                passed = run_lesson(lesson, lesson.config(), rec, None, out=io.StringIO(), err=io.StringIO(),
+                passed = run_lesson(lesson, lesson.config(), tee, None, out=io.StringIO(), err=io.StringIO(),
                                     quiet=True, collected=collected)
             finally:
-                rec.close()
+                tee.close()
             failed = [(e.id, e.measured, e.theory, e.reason) for exps, _ in collected.values() for e in exps
                       if not e.passed]
             assert passed and not failed, f"{lesson.id}: experiments failed at the defaults: {failed}"
@@ -51,8 +56,11 @@ def default_runs(tmp_path_factory):
             for index, (exps, _) in collected.items():
                 stages[index] = {e.id: e for e in exps}
                 assert len(stages[index]) == len(exps), f"duplicate experiment ids: {[e.id for e in exps]}"
+            for index, (exps, used) in collected.items():
+                replay.save(store, lesson, index, lesson.config(), exps, used)
             made[lesson_id] = DefaultRun(path, rec, stages, {i: used for i, (_, used) in collected.items()})
         return made[lesson_id]
+    get.replay_store = store
     return get
 
 

@@ -1,4 +1,5 @@
 """Test helpers: run a lesson stage headless, run the CLI in a subprocess."""
+import contextlib
 import os
 import subprocess
 import sys
@@ -76,3 +77,43 @@ def write_points_recording(path, steps: int = 20, points: int = 2000, app: str =
     rec.flush()
     rec.disconnect()
     return Path(path)
+
+
+def free_port() -> int:
+    import socket
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@contextlib.contextmanager
+def notebook_asset_server(timeout: float = 60.0):
+    """rerun-notebook's own asset server (``python -m rerun_notebook serve``: the widget's JavaScript and
+    the viewer's WebAssembly from the installed package) on a free port; yields the widget's address,
+    a value for RERUN_NOTEBOOK_ASSET. One server for many kernels: with serve-local each kernel starts
+    its own and gzips the 67 MB viewer first (about 3 s)."""
+    import time
+    import urllib.request
+    port = free_port()
+    proc = subprocess.Popen([sys.executable, "-m", "rerun_notebook", "serve", "--bind-address", "127.0.0.1",
+                             "--port", str(port)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    url = f"http://127.0.0.1:{port}/widget.js"
+    try:
+        deadline = time.monotonic() + timeout
+        while True:
+            try:
+                urllib.request.urlopen(url, timeout=5).close()
+                break
+            except OSError:
+                if proc.poll() is not None or time.monotonic() > deadline:
+                    raise RuntimeError(f"rerun-notebook's asset server did not answer at {url}: "
+                                       f"{proc.stderr.read().decode(errors='replace')[-500:] if proc.poll() is not None else 'timed out'}")
+                time.sleep(0.1)
+        yield url
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()

@@ -9,6 +9,11 @@ extra), with the layout the recording opens on in the desktop viewer. The viewer
 WebAssembly are served from the installed package (RERUN_NOTEBOOK_ASSET=serve-local unless set):
 nothing is fetched from a network. No stage logic lives in the notebook: a cell calls
 :meth:`NotebookLesson.stage`, the same runner as ``python -m lessons run``.
+
+For the tests and CI only: with ``ELASTIC_NOTEBOOK_REPLAY=DIR`` a stage whose lesson, stage number,
+configuration and code are those of a run stored in DIR (written while the tests ran every lesson at
+its defaults) shows that run's table and recording instead of running again; anything else runs
+(:mod:`lessons.app.replay`).
 """
 from __future__ import annotations
 
@@ -16,13 +21,14 @@ import dataclasses
 import html
 import json
 import os
+import shutil
 import sys
 import tempfile
 from pathlib import Path
 
 from .arguments import Parser, UsageError
 from .output_paths import write_all_or_none
-from . import registry
+from . import registry, replay
 from .._framework import run_lesson, text_table, validate_config
 
 VIEWER_HEIGHT = 720   # pixels of the embedded viewer
@@ -39,6 +45,7 @@ class StageResult:
     title: str
     experiments: list
     recording: Path | None
+    replayed: bool = False   # taken from ELASTIC_NOTEBOOK_REPLAY's store (tests and CI), not run here
 
     @property
     def passed(self) -> bool:
@@ -109,6 +116,16 @@ class NotebookLesson:
         if not 1 <= index <= len(lesson.stages):
             raise ValueError(f"stage must be in 1..{len(lesson.stages)} (got {index})")
         path = self.folder / f"{lesson.id}-stage{index}.rrd" if record else None
+        title = lesson.stages[index - 1].title
+        store = os.environ.get(replay.ENV)
+        stored = replay.load(store, lesson, index, cfg) if store else None
+        if stored is not None:
+            print(f"== {lesson.id} · stage {index}/{len(lesson.stages)}: {title}\n   replayed from {store} "
+                  f"({replay.ENV} is set: the run made with this very configuration and code)")
+            print(text_table(stored.experiments))
+            if path is not None:
+                shutil.copyfile(stored.recording, path)
+            return StageResult(lesson.id, index, title, stored.experiments, path, replayed=True)
         rec = make_recorder(lesson, path)
         collected: dict = {}
         try:
@@ -116,7 +133,7 @@ class NotebookLesson:
         finally:
             rec.close()
         experiments = collected.get(index, ([], None))[0]
-        return StageResult(lesson.id, index, lesson.stages[index - 1].title, experiments, path)
+        return StageResult(lesson.id, index, title, experiments, path)
 
 
 # ------------------------------------------------------------------ the notebook, generated from the lesson
