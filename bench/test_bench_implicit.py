@@ -7,7 +7,8 @@ cloth (work the engine can reuse across steps is counted).
 Each test is one comparison row, its contenders timed interleaved in rounds (bench/interleave.py):
 
 * ``test_backward_euler_direct``: the direct solvers at one size: engine PARDISO (mixed precision:
-  f32 factorisation refined in f64 to the tolerance) and Eigen LL^T, numpy + PARDISO (analysis
+  f32 factorisation refined in f64 to the tolerance; and ``pardiso-double``, f64 only, which
+  answers the 1e-8 comparisons too) and Eigen LL^T, numpy + PARDISO (analysis
   once), ``pypardiso.spsolve``, CHOLMOD, and PARDISO's numeric factorisation + solve of the same
   matrix alone, in f64 (``pardiso-factor``: no assembly, no check) and with the engine's technique
   (``pardiso-factor-mixed``: f32 factorisation, f64 refinement to the same tolerance);
@@ -85,17 +86,22 @@ def _engine(c, solver, tol, steps=1):
     """A Contender for the engine's backward Euler with ``solver`` (None and the reason when it
     cannot run here)."""
     impl = "engine-" + solver
-    if solver == "pardiso" and not pardiso_available():
+    if solver.startswith("pardiso") and not pardiso_available():
         return None, "MKL PARDISO not installed (pip install -e '.[fast]')"
     fp = runtime.current().fp
     if fp == 32 and tol != TOLS[0]:
         return None, "f32 cannot reach 1e-8"
+    if fp == 32 and solver == "pardiso-double":
+        return None, "the f64-only PARDISO row is timed in the f64 processes"
     x0, v0 = config.cloth_start_state(c)
     st = c.model.make_state(x0, v0)
 
     def reset():
         st.assign(x0, v0, 0.0)
     reset.state = st
+    if solver == "pardiso-double":   # the engine's PARDISO in f64 only: ~1e-13, so it answers every tolerance
+        from engine.solvers import PardisoSolver
+        solver = PardisoSolver(TOLS[0] if tol is None else tol, 100000, precision="double")
     be, tol, failed = config.backward_euler_for(c.model, reset, DT, solver, fp, tol=tol)
     if be is None:
         return None, f"{solver} reached none of the relative tolerances {failed} in f32"
@@ -112,8 +118,10 @@ def _engine(c, solver, tol, steps=1):
         d.update({k + "_s": float(v) for k, v in getattr(stepper.solver, "last_timings", {}).items()})
         return d
 
-    info = dict(solver=solver, tol=tol, tol_failed=failed)
-    if solver == "pcg" and not _membrane(c):   # the traffic model counts springs and hinges
+    info = dict(solver=be.solver.name, tol=tol, tol_failed=failed)
+    if be.solver.name == "pardiso":
+        info["precision"] = be.solver.precision
+    if info["solver"] == "pcg" and not _membrane(c):   # the traffic model counts springs and hinges
         fb = np.dtype(float_dtype()).itemsize
         i = _info(c)
         info["bytes_per_iteration"] = traffic.kernel_bytes("cg_iteration", i["n"], i["m"], i["h"], fb)
@@ -184,7 +192,7 @@ def _pcg_traffic(row, info):
         r["info"]["bytes"] = traffic.implicit_step_bytes(info["n"], info["m"], info["h"], it, fb)
 
 
-DIRECT = ("engine-pardiso", "engine-cholesky", "peer-pardiso", "peer-pardiso-factor", "peer-pardiso-factor-mixed",
+DIRECT = ("engine-pardiso", "engine-pardiso-double", "engine-cholesky", "peer-pardiso", "peer-pardiso-factor", "peer-pardiso-factor-mixed",
           "peer-pardiso-spsolve", "peer-cholmod")
 ITERATIVE = ("engine-pcg", "scipy", "peer-pyamg-cg")
 

@@ -214,7 +214,7 @@ def _kernels_md(rows) -> list:
     return L
 
 
-IMPLICIT_IMPLS = ("engine-pardiso", "engine-cholesky", "engine-pcg", "peer-pardiso", "peer-pardiso-factor",
+IMPLICIT_IMPLS = ("engine-pardiso", "engine-pardiso-double", "engine-cholesky", "engine-pcg", "peer-pardiso", "peer-pardiso-factor",
                   "peer-pardiso-factor-mixed", "peer-pardiso-spsolve", "peer-cholmod", "peer-pyamg-cg", "scipy")
 
 
