@@ -34,7 +34,6 @@ Direct solvers reach ~1e-13, so ``tol`` applies to the iterative ones only.  Eac
 its assembly, set-up (analysis, hierarchy or factorisation) and solve seconds and the true
 relative residual.
 """
-import ctypes
 import os
 import time
 
@@ -171,17 +170,8 @@ def product(A, y, upper: bool):
 
 def _pardiso_solver():
     """A pypardiso solver with the engine's PARDISO settings and thread count."""
-    import pypardiso
-
-    from engine.solvers import PARDISO_IPARMS
-
-    S = pypardiso.PyPardisoSolver(mtype=2)
-    for i, val in PARDISO_IPARMS:
-        S.set_iparm(i, val)
-    fn = getattr(S.libmkl, "MKL_Set_Num_Threads", None) or getattr(S.libmkl, "mkl_set_num_threads", None)
-    if fn is not None:
-        fn(ctypes.c_int(_threads()))
-    return S
+    from engine.solvers.pardiso import configured_solver
+    return configured_solver(_threads())
 
 
 class FactorOnly:

@@ -51,6 +51,22 @@ def pardiso_available() -> bool:
 _PARDISO_OK: bool | None = None
 
 
+def configured_solver(threads: int):
+    """A pypardiso solver (SPD, mtype 2) with the engine's settings (PARDISO_IPARMS) and MKL limited to
+    ``threads`` threads: what :class:`Pardiso` calls through, and the benchmark's pypardiso.spsolve row."""
+    quiet_openmp()
+    import pypardiso
+    solver = pypardiso.PyPardisoSolver(mtype=2)
+    for i, v in PARDISO_IPARMS:
+        solver.set_iparm(i, v)
+    for name in ("MKL_Set_Num_Threads", "mkl_set_num_threads"):
+        fn = getattr(solver.libmkl, name, None)
+        if fn is not None:
+            fn(ctypes.c_int(int(threads)))
+            break
+    return solver
+
+
 class PardisoError(RuntimeError):
     """PARDISO returned a non-zero error code (its number and phase in the message)."""
 
@@ -65,18 +81,9 @@ class Pardiso:
     PARDISO's memory when dropped."""
 
     def __init__(self, indptr: np.ndarray, indices: np.ndarray, threads: int = 2, single: bool = False):
-        quiet_openmp()
-        import pypardiso
-        self._lib = pypardiso.PyPardisoSolver(mtype=2)   # loads MKL, holds pt, iparm and the entry point
-        for i, v in PARDISO_IPARMS:
-            self._lib.set_iparm(i, v)
+        self._lib = configured_solver(threads)   # loads MKL, holds pt, iparm and the entry point
         self.single = bool(single)
         self._lib.set_iparm(SINGLE_PRECISION_IPARM, 1 if self.single else 0)
-        for name in ("MKL_Set_Num_Threads", "mkl_set_num_threads"):
-            fn = getattr(self._lib.libmkl, name, None)
-            if fn is not None:
-                fn(ctypes.c_int(int(threads)))
-                break
         self.dtype = np.float32 if self.single else np.float64
         self.n = len(indptr) - 1
         self._ia = np.ascontiguousarray(np.asarray(indptr) + 1, dtype=np.int32)   # 1-based, once
