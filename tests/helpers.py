@@ -117,3 +117,20 @@ def notebook_asset_server(timeout: float = 60.0):
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
+
+
+def start_web_view(rrd, pattern: str):
+    """``python -m lessons view RRD --web`` on free ports: (the process, the match of ``pattern`` in the
+    line it prints once the page answers). Fails with that line and the server's error output, the
+    server stopped, when the line does not match."""
+    import re
+    proc = subprocess.Popen([sys.executable, "-m", "lessons", "view", str(rrd), "--web", "--port", "0",
+                             "--grpc-port", "0"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    line = proc.stdout.readline()   # printed once the page answers
+    match = re.search(pattern, line)
+    if match is None:
+        err = proc.stderr.read() if proc.poll() is not None else ""
+        proc.kill()
+        proc.communicate()
+        raise AssertionError((line, err))
+    return proc, match

@@ -17,11 +17,9 @@ import functools
 import http.server
 import importlib.util
 import os
-import re
 import shutil
 import signal
 import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
@@ -30,7 +28,7 @@ import numpy as np
 import pytest
 
 from lessons.tools.screenshots import decode_png
-from tests.helpers import notebook_asset_server
+from tests.helpers import notebook_asset_server, start_web_view
 
 pytestmark = pytest.mark.browser
 
@@ -155,12 +153,8 @@ def assert_drawn(png, took, where):
 
 
 def test_the_web_viewer_draws_the_recording_in_a_browser(points_rrd):
-    proc = subprocess.Popen([sys.executable, "-m", "lessons", "view", str(points_rrd), "--web", "--port", "0",
-                             "--grpc-port", "0"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc, match = start_web_view(points_rrd, r"open (http://127\.0\.0\.1:\d+/\S+)")
     try:
-        line = proc.stdout.readline()   # printed once the page answers
-        match = re.search(r"open (http://127\.0\.0\.1:\d+/\S+)", line)
-        assert match, (line, proc.stderr.read() if proc.poll() is not None else "")
         png, took = screenshot_when(match.group(1), lambda png: magenta_pixels(png).mean() > MIN_SHARE,
                                     size=(1000, 700), timeout=TIMEOUT_S, name="web-viewer")
         assert_drawn(png, took, "python -m lessons view --web")

@@ -12,7 +12,7 @@ import urllib.request
 import pytest
 
 from lessons.app.view import web_address
-from tests.helpers import write_points_recording
+from tests.helpers import start_web_view, write_points_recording
 
 
 @pytest.fixture(scope="module")
@@ -27,12 +27,8 @@ def cli(*args):
 
 
 def test_the_web_viewer_is_served_and_stops_on_ctrl_c(small_rrd):
-    proc = subprocess.Popen([sys.executable, "-m", "lessons", "view", str(small_rrd), "--web", "--port", "0",
-                             "--grpc-port", "0"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc, match = start_web_view(small_rrd, r"open (http://127\.0\.0\.1:(\d+)/\?url=(\S+))")
     try:
-        line = proc.stdout.readline()   # printed once the page answers
-        match = re.search(r"open (http://127\.0\.0\.1:(\d+)/\?url=(\S+))", line)
-        assert match, (line, proc.stderr.read() if proc.poll() is not None else "")
         url, port = match.group(1), int(match.group(2))
         proxy = urllib.parse.unquote(match.group(3))
         grpc_port = int(re.search(r":(\d+)/proxy$", proxy).group(1))
