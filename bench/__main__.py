@@ -160,7 +160,7 @@ def main(argv=None) -> int:
              "bench/test_peers_explicit.py)")
         env = dict(base_env, ELASTIC_THREADS="2", ELASTIC_FP="64", ELASTIC_BENCH_PROFILE="smoke")
         cmd = [sys.executable, "-m", "pytest", *CHECK_FILES, "-q", "-rs", "-p", "no:cacheprovider",
-               "--benchmark-disable"]
+               "--benchmark-disable", "-n", "0"]
         rc, wall = _run(cmd, env, raw / "checks.log", timeout, "checks",
                         show=lambda line: "passed" in line or "failed" in line or "FAILED" in line)
         run["parts"]["checks"] = dict(rc=rc, wall_s=wall, skipped=_skip_reasons(raw / "checks.log"))
@@ -175,7 +175,7 @@ def main(argv=None) -> int:
         _log(f"[{cfg}] pytest bench --benchmark-only ({', '.join(f'{k}={v}' for k, v in cenv.items())})")
         env = dict(base_env, **cenv)
         storage = out / "storage" / cfg
-        cmd = [sys.executable, "-m", "pytest", "bench", "-v", "-rs", "-p", "no:cacheprovider", "--benchmark-enable",
+        cmd = [sys.executable, "-m", "pytest", "bench", "-v", "-rs", "-p", "no:cacheprovider", "-n", "0", "--benchmark-enable",
                "--benchmark-only", f"--benchmark-json={raw / f'bench-{cfg}.json'}",
                f"--benchmark-storage=file://{storage}", f"--benchmark-save={cfg}",
                "--benchmark-columns=median,iqr,rounds", "--benchmark-sort=fullname"]

@@ -12,6 +12,10 @@ from engine import runtime
 
 def pytest_configure(config):
     disabled = config.getoption("benchmark_disable", False) and not config.getoption("benchmark_enable", False)
+    if not disabled and (config.getoption("numprocesses", None) or 0) != 0:
+        # the project's addopts run the tests on two pytest-xdist workers; timings taken beside another
+        # worker would mean nothing (and pytest-benchmark would silently switch itself off)
+        raise pytest.UsageError("timed benchmarks need one process: add -n 0 (python -m bench does)")
     bench_config.set_default_profile(not disabled)
 
 

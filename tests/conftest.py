@@ -69,3 +69,12 @@ def default_recordings(default_runs):
     """{lesson id: (path of its .rrd, the Recorder that wrote it)} for every lesson (default_runs)."""
     from lessons.app import registry
     return {lesson.id: tuple(default_runs(lesson.id)[:2]) for lesson in registry.all_lessons()}
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config, items):
+    """Under pytest-xdist (``--dist loadgroup``), every test that reads the shared default runs is
+    sent to the same worker, so the lessons are run once per session there, not once per worker."""
+    for item in items:
+        if {"default_runs", "default_recordings"} & set(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.xdist_group("default-runs"))
