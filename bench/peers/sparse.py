@@ -155,17 +155,20 @@ class SparsePeer:
         self.cloth.apply_step(x, v, y, dt)
         from engine.solvers.direct import norm  # without BLAS, as the engine's check
         nb = norm(b)
-        residual = norm(b - product(A, y, upper=self.name.startswith("pardiso"))) / nb if nb > 0 else 0.0
+        residual = norm(residual_of(A, b, y, upper=self.name.startswith("pardiso"))) / nb if nb > 0 else 0.0
         self.last = dict(assembly_s=t1 - t0, setup_s=setup, solve_s=t2 - t1 - setup, iterations=int(iterations),
                          residual=float(residual))
         return x, v
 
 
-def product(A, y, upper: bool):
-    """A y for the full symmetric matrix, given in full or (``upper``) as its upper triangle, without
-    building a second matrix (engine.solvers.upper_product: the engine's own PARDISO check)."""
-    from engine.solvers import upper_product
-    return upper_product(A, y) if upper else A @ y
+def residual_of(A, b, y, upper: bool):
+    """b - A y for the full symmetric matrix, given in full (scipy) or (``upper``) as its upper triangle,
+    without building a second matrix: the engine's own PARDISO check (engine.solvers.pardiso.SymmetricUpper,
+    MKL's threaded symmetric product)."""
+    if not upper:
+        return b - A @ y
+    from engine.solvers.pardiso import SymmetricUpper
+    return SymmetricUpper(A, _threads()).residual(b, y)
 
 
 def _pardiso_solver():
@@ -190,7 +193,8 @@ class FactorOnly:
         self.tol, self.refinements = float(tol), int(refinements)
         self.S = Pardiso(self.A.indptr, self.A.indices, _threads(), single=self.mixed)
         self.S.analyse(self.A.data)
-        self._diag = self.A.diagonal()
+        from engine.solvers.pardiso import SymmetricUpper
+        self._product = SymmetricUpper(self.A, _threads())   # the engine's check, made once per matrix as there
         self.y = None
         self.last = {}
 
@@ -200,10 +204,10 @@ class FactorOnly:
         y = self.S.solve(self.b)
         steps = 1
         if self.mixed:
-            from engine.solvers.direct import norm, upper_product
+            from engine.solvers.direct import norm
             nb = norm(self.b)
             while True:
-                r = self.b - upper_product(self.A, y, self._diag)
+                r = self._product.residual(self.b, y)
                 residual = norm(r) / nb
                 if residual <= self.tol:
                     break

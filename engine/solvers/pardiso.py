@@ -59,12 +59,96 @@ def configured_solver(threads: int):
     solver = pypardiso.PyPardisoSolver(mtype=2)
     for i, v in PARDISO_IPARMS:
         solver.set_iparm(i, v)
+    _limit_threads(solver.libmkl, threads)
+    return solver
+
+
+def _limit_threads(lib, threads: int) -> None:
     for name in ("MKL_Set_Num_Threads", "mkl_set_num_threads"):
-        fn = getattr(solver.libmkl, name, None)
+        fn = getattr(lib, name, None)
         if fn is not None:
             fn(ctypes.c_int(int(threads)))
             break
-    return solver
+
+
+def _mkl_library():
+    """MKL's runtime library as pypardiso loaded it (once per process)."""
+    global _MKL
+    if _MKL is None:
+        quiet_openmp()
+        import pypardiso
+        _MKL = pypardiso.PyPardisoSolver().libmkl
+    return _MKL
+
+
+_MKL = None
+
+
+class _Descr(ctypes.Structure):
+    """MKL's ``struct matrix_descr`` (mkl_spblas.h)."""
+    _fields_ = [("type", ctypes.c_int), ("mode", ctypes.c_int), ("diag", ctypes.c_int)]
+
+
+# mkl_spblas.h's enumerations
+_NON_TRANSPOSE, _SYMMETRIC, _FILL_UPPER, _DIAG_NON_UNIT, _INDEX_ZERO = 10, 21, 41, 50, 0
+
+
+class SymmetricUpper:
+    """``residual(b, y) = b - A y`` for the symmetric A whose UPPER triangle is the f64 CSR matrix
+    ``U`` (scipy, sorted, 0-based), by MKL's multi-threaded sparse product (``mkl_sparse_d_mv``,
+    symmetric, upper fill) on U's own arrays: no copy, so values written into ``U.data`` in place
+    are seen by the next product (the handle is deliberately not ``mkl_sparse_optimize``-d, which
+    copies them).  One pass over U with MKL's threads, against scipy's two single-threaded ones
+    (U y + U^T y - diag(U) y): at 128^2 about 0.5 ms against 1.1-2.5 ms.  Without MKL's
+    inspector-executor entry points it falls back to scipy (:func:`engine.solvers.direct.upper_product`'s
+    formula)."""
+
+    def __init__(self, U, threads: int = 2):
+        self.U = U
+        self.n = U.shape[0]
+        self._ia = np.ascontiguousarray(U.indptr, dtype=np.int32)
+        self._ja = np.ascontiguousarray(U.indices, dtype=np.int32)
+        if U.data.dtype != np.float64 or not U.data.flags.c_contiguous:
+            raise ValueError("SymmetricUpper needs the f64 values of a CSR matrix, contiguous")
+        self._handle = None
+        lib = _mkl_library()
+        _limit_threads(lib, threads)
+        if not all(hasattr(lib, f) for f in ("mkl_sparse_d_create_csr", "mkl_sparse_d_mv", "mkl_sparse_destroy")):
+            return
+        i32 = ctypes.POINTER(ctypes.c_int32)
+        handle = ctypes.c_void_p()
+        status = lib.mkl_sparse_d_create_csr(ctypes.byref(handle), _INDEX_ZERO, self.n, self.n,
+                                             self._ia.ctypes.data_as(i32), self._ia[1:].ctypes.data_as(i32),
+                                             self._ja.ctypes.data_as(i32), U.data.ctypes.data_as(ctypes.c_void_p))
+        if status != 0:
+            return
+        self._lib, self._handle, self._descr = lib, handle, _Descr(_SYMMETRIC, _FILL_UPPER, _DIAG_NON_UNIT)
+        lib.mkl_sparse_d_mv.argtypes = [ctypes.c_int, ctypes.c_double, ctypes.c_void_p, _Descr, ctypes.c_void_p,
+                                        ctypes.c_double, ctypes.c_void_p]
+
+    @property
+    def uses_mkl(self) -> bool:
+        return self._handle is not None
+
+    def residual(self, b: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """b - A y (f64, a new array)."""
+        if self._handle is None:
+            U = self.U
+            return b - (U @ y + U.T @ y - U.diagonal() * y)
+        out = np.array(b, dtype=np.float64)
+        y = np.ascontiguousarray(y, dtype=np.float64)
+        status = self._lib.mkl_sparse_d_mv(_NON_TRANSPOSE, -1.0, self._handle, self._descr, y.ctypes.data, 1.0,
+                                           out.ctypes.data)
+        if status != 0:
+            raise PardisoError(f"MKL sparse product failed with status {status}")
+        return out
+
+    def __del__(self):
+        try:
+            if self._handle is not None:
+                self._lib.mkl_sparse_destroy(self._handle)
+        except Exception:
+            pass
 
 
 class PardisoError(RuntimeError):

@@ -407,3 +407,30 @@ def test_mixed_precision_pardiso_refines_or_escalates(decades, escalates):
 def test_pardiso_precision_is_checked():
     with pytest.raises(ValueError, match="precision must be one of mixed, double, got 'half'"):
         solvers.PardisoSolver(1e-8, precision="half")
+
+
+@needs_pardiso
+@pytest.mark.parametrize("mkl", [True, False])
+def test_symmetric_upper_residual_is_the_full_matrix_and_sees_values_written_in_place(mkl):
+    """engine.solvers.pardiso.SymmetricUpper (PARDISO's residual check) computes b - A y for the full
+    symmetric A from its upper triangle, with an unsymmetric-looking upper part (a lower-triangle-only or
+    transposed product would differ), the diagonal counted once, and the values written into U.data
+    after the product was set up (the engine assembles in place every step) are the ones used; the
+    scipy fallback (no MKL inspector-executor) gives the same."""
+    import scipy.sparse
+    from engine.solvers.pardiso import SymmetricUpper
+    rng = np.random.default_rng(5)
+    n = 30
+    full = rng.standard_normal((n, n)) * (rng.random((n, n)) < 0.2)
+    full = full + full.T + np.diag(rng.uniform(5, 10, n))
+    U = scipy.sparse.csr_matrix(np.triu(full))
+    U.sort_indices()
+    product = SymmetricUpper(U)
+    if not mkl:
+        product._handle = None
+    else:
+        assert product.uses_mkl
+    y, b = rng.standard_normal(n), rng.standard_normal(n)
+    assert np.max(np.abs(product.residual(b, y) - (b - full @ y))) <= 1e-13 * np.abs(full).sum()
+    U.data *= -2.5   # in place, as the assembly writes
+    assert np.max(np.abs(product.residual(b, y) - (b + 2.5 * full @ y))) <= 1e-13 * np.abs(full).sum()
