@@ -32,7 +32,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from engine.fields import axpy_into, copy_vec3, dot_vec3
+from engine.fields import axpy_inplace, axpy_into, copy_vec3, dot_vec3
 
 ARMIJO_C1 = 1e-4
 MAX_BACKTRACKS = 30
@@ -135,7 +135,9 @@ def minimize(problem: Problem, x, trial, dx, opts: Options, verbose: bool = Fals
         # system stops at ~ cond x eps) still gives a descent direction that cuts r by about its residual
         usable = lin.converged or (opts.inexact_residual > 0.0 and math.isfinite(lin.residual)
                                    and lin.residual <= opts.inexact_residual)
-        slope = dot_vec3(problem.rhs, dx) if usable else 0.0   # -grad . dx > 0 for a descent direction
+        # -grad . dx > 0 for a descent direction; read only to judge an exact-Hessian step, by the line search
+        # and by Levenberg's gain ratio (a full step without them skips the reduction)
+        slope = dot_vec3(problem.rhs, dx) if usable and (use_exact or opts.line_search or opts.levenberg) else 0.0
         if use_exact and not (usable and slope > 0.0):
             exact_ok = False   # indefinite here: back to the PSD Hessian
             continue
@@ -143,10 +145,10 @@ def minimize(problem: Problem, x, trial, dx, opts: Options, verbose: bool = Fals
         if not usable:
             res.status = "linear"
             break
-        s, accepted, phi_t = 1.0, False, phi
+        s, accepted, phi_t, in_place = 1.0, False, phi, False
         if not opts.line_search:
-            axpy_into(x, dx, 1.0, trial)
-            accepted = True
+            axpy_inplace(x, dx, 1.0)   # the full step, taken in x itself (no trial point to judge)
+            accepted = in_place = True
         elif opts.levenberg and slope <= problem.roundoff(x, phi):
             # the full step's predicted decrease is below the objective's round-off: Armijo's test would
             # compare noise (and accept a random fraction of the step); the residual decides instead
@@ -185,7 +187,8 @@ def minimize(problem: Problem, x, trial, dx, opts: Options, verbose: bool = Fals
                 continue
         if use_exact and s < 1.0:
             exact_ok = False
-        copy_vec3(trial, x)
+        if not in_place:
+            copy_vec3(trial, x)
         k += 1
         rejections = 0
         res.step_sizes.append(s)
