@@ -191,12 +191,15 @@ def _pcg_whole_serial(beta0: float, rz0: float, target2: float, max_iter: ti.i32
                       s_off: int_array, s_edge: int_array, s_other: int_array, s_blocks: mat3_array,
                       elements: int_array2, n_elements: ti.i32, b_off: int_array, b_ent: int_array,
                       w: vec3_array2, s: scalar_array, c_blocks: mat3_array2, c_dinv: mat2_array,
-                      c_elements: int_array2, c_n: ti.i32, c_off: int_array, c_ent: int_array, yt: vec3_array2,
+                      c_elements: int_array2, c_n: ti.i32, yt: vec3_array2, acc: vec3_array,
                       k: ti.template(), kc: ti.template(), form: ti.template()) -> ti.math.vec3:
     # The whole CG loop in one serial kernel (small problems: no launch or argument overhead per
     # iteration).  Starts from r, z, p set by _pcg_restart (beta0 = 0).  Same arithmetic as the
     # fused path: p = z + beta p ; q = A' p ; alpha = r.z / p.q ; y += alpha p ; r -= alpha q ;
     # z = P^-1 r.  Returns (iterations, r.r, 1 if p.q <= 0 else 0).
+    # Being serial, it adds each element product to its corners' sums acc (n) as it is made, in
+    # element order: the order of the slot incidence (entries ascending per vertex), so acc_i is
+    # bit for bit the fused path's gather, without reading the incidence or the products back.
     n = z.shape[0]
     rz = rz0
     beta = beta0
@@ -205,15 +208,20 @@ def _pcg_whole_serial(beta0: float, rz0: float, target2: float, max_iter: ti.i32
     bad = 0
     ti.loop_config(serialize=True)
     for _ in range(max_iter):
+        if it == 0:
+            for i in range(n):
+                acc[i] = ti.math.vec3(0.0)
         for i in range(n):
             p[i] = z[i] + beta * p[i]
         for e in range(n_elements):
-            acc = 0.0
+            se = 0.0
             for sl in ti.static(range(k)):
-                acc += w[e, sl].dot(p[elements[e, sl]])
-            s[e] = acc
+                se += w[e, sl].dot(p[elements[e, sl]])
+            s[e] = se
         for e in range(c_n):
             _element_product(c_blocks, c_dinv, c_elements, p, p, 0.0, yt, e, kc, form)
+            for sl in ti.static(range(kc)):
+                acc[c_elements[e, sl]] += yt[e, sl]
         pq = 0.0
         for i in range(n):
             pi = p[i]
@@ -221,7 +229,8 @@ def _pcg_whole_serial(beta0: float, rz0: float, target2: float, max_iter: ti.i32
             for m in range(s_off[i], s_off[i + 1]):
                 qi += s_blocks[s_edge[m]] @ (pi - p[s_other[m]])
             qi = _add_rank_one(qi, i, b_off, b_ent, w, s, k)
-            qi = qi + slot_gather(yt, c_off, c_ent, i, kc)   # the generic path's q += gather(products)
+            qi = qi + acc[i]   # the fused path's q += gather(products)
+            acc[i] = ti.math.vec3(0.0)
             q[i] = qi
             if inv_mass[i] > 0.0:
                 pq += pi.dot(qi)
@@ -362,8 +371,7 @@ class PCGSolver(LinearSolver):
                 k_it, rr, bad = _pcg_whole_serial(0.0, rz, target2, self.max_iter - it, z, p, q, r, y, mass,
                                                   inv_mass, a_s, Pinv, *pair, rk["elements"], rk["n"], rk["off"],
                                                   rk["ent"], rk["w"], rk["s"], el["blocks"], el["dinv"],
-                                                  el["elements"], el["n"], el["off"], el["ent"], el["yt"], rk["k"],
-                                                  el["k"], el["form"])
+                                                  el["elements"], el["n"], el["yt"], p2, rk["k"], el["k"], el["form"])
                 it += int(k_it)
                 if bad:
                     message = "A is not positive definite on a search direction (p.Ap <= 0)"
