@@ -95,13 +95,14 @@ def _step_vertex(i, alpha, p: ti.template(), q: ti.template(), Pinv: ti.template
 
 
 @ti.func
-def _add_rank_one(qi, i, b_off: ti.template(), b_ent: ti.template(), w: ti.template(), s: ti.template(),
+def _rank_one_sum(i, b_off: ti.template(), b_ent: ti.template(), w: ti.template(), s: ti.template(),
                   k: ti.template()):
-    # qi + sum_{(e, slot) ~ i} s_e w_e,slot over the incidence (entry = k e + slot), summed in that order
+    # sum_{(e, slot) ~ i} s_e w_e,slot over the incidence (entry = k e + slot), from 0, in that order
+    acc = ti.math.vec3(0.0)
     for j in range(b_off[i], b_off[i + 1]):
         ent = b_ent[j]
-        qi += s[ent // k] * w[ent // k, ent % k]
-    return qi
+        acc += s[ent // k] * w[ent // k, ent % k]
+    return acc
 
 
 @ti.func
@@ -175,7 +176,7 @@ def _fused_direction_product(beta: float, z: vec3_array, p: vec3_array, p_new: v
         for m in range(s_off[i], s_off[i + 1]):
             j = s_other[m]
             qi += s_blocks[s_edge[m]] @ (pi - (z[j] + beta * p[j]))
-        qi = _add_rank_one(qi, i, b_off, b_ent, w, s, k)
+        qi = qi + _rank_one_sum(i, b_off, b_ent, w, s, k)
         qi = qi + slot_gather(yt, c_off, c_ent, i, kc)   # the generic path's q += gather(products)
         p_new[i] = pi
         q[i] = qi
@@ -189,17 +190,17 @@ def _pcg_whole_serial(beta0: float, rz0: float, target2: float, max_iter: ti.i32
                       z: vec3_array, p: vec3_array, q: vec3_array, r: vec3_array, y: vec3_array,
                       mass: scalar_array, inv_mass: scalar_array, a: float, Pinv: mat3_array,
                       s_off: int_array, s_edge: int_array, s_other: int_array, s_blocks: mat3_array,
-                      elements: int_array2, n_elements: ti.i32, b_off: int_array, b_ent: int_array,
-                      w: vec3_array2, s: scalar_array, c_blocks: mat3_array2, c_dinv: mat2_array,
-                      c_elements: int_array2, c_n: ti.i32, yt: vec3_array2, acc: vec3_array,
+                      elements: int_array2, n_elements: ti.i32, w: vec3_array2, c_blocks: mat3_array2, c_dinv: mat2_array,
+                      c_elements: int_array2, c_n: ti.i32, yt: vec3_array2, acc: vec3_array, racc: vec3_array,
                       k: ti.template(), kc: ti.template(), form: ti.template()) -> ti.math.vec3:
     # The whole CG loop in one serial kernel (small problems: no launch or argument overhead per
     # iteration).  Starts from r, z, p set by _pcg_restart (beta0 = 0).  Same arithmetic as the
     # fused path: p = z + beta p ; q = A' p ; alpha = r.z / p.q ; y += alpha p ; r -= alpha q ;
     # z = P^-1 r.  Returns (iterations, r.r, 1 if p.q <= 0 else 0).
-    # Being serial, it adds each element product to its corners' sums acc (n) as it is made, in
-    # element order: the order of the slot incidence (entries ascending per vertex), so acc_i is
-    # bit for bit the fused path's gather, without reading the incidence or the products back.
+    # Being serial, it adds each element's product to its corners' sums as it is made (rank-one
+    # elements to racc, the block energy's to acc), in element order: the order of the slot
+    # incidence (entries ascending per vertex), so each sum is bit for bit the fused path's gather,
+    # without reading the incidence or the products back.
     n = z.shape[0]
     rz = rz0
     beta = beta0
@@ -211,13 +212,15 @@ def _pcg_whole_serial(beta0: float, rz0: float, target2: float, max_iter: ti.i32
         if it == 0:
             for i in range(n):
                 acc[i] = ti.math.vec3(0.0)
+                racc[i] = ti.math.vec3(0.0)
         for i in range(n):
             p[i] = z[i] + beta * p[i]
         for e in range(n_elements):
             se = 0.0
             for sl in ti.static(range(k)):
                 se += w[e, sl].dot(p[elements[e, sl]])
-            s[e] = se
+            for sl in ti.static(range(k)):
+                racc[elements[e, sl]] += se * w[e, sl]
         for e in range(c_n):
             _element_product(c_blocks, c_dinv, c_elements, p, p, 0.0, yt, e, kc, form)
             for sl in ti.static(range(kc)):
@@ -228,8 +231,9 @@ def _pcg_whole_serial(beta0: float, rz0: float, target2: float, max_iter: ti.i32
             qi = a * mass[i] * pi
             for m in range(s_off[i], s_off[i + 1]):
                 qi += s_blocks[s_edge[m]] @ (pi - p[s_other[m]])
-            qi = _add_rank_one(qi, i, b_off, b_ent, w, s, k)
+            qi = qi + racc[i]  # the fused path's rank-one sum
             qi = qi + acc[i]   # the fused path's q += gather(products)
+            racc[i] = ti.math.vec3(0.0)
             acc[i] = ti.math.vec3(0.0)
             q[i] = qi
             if inv_mass[i] > 0.0:
@@ -277,8 +281,9 @@ class PCGSolver(LinearSolver):
         entry = self._entry(model)
         if "r" not in entry:
             n = model.n
+            # acc: the whole-loop kernel's rank-one sums (p2, free there, its block energy's)
             entry.update(r=vec3_ndarray(n), z=vec3_ndarray(n), p=vec3_ndarray(n), p2=vec3_ndarray(n),
-                         q=vec3_ndarray(n), Pinv=ti.ndarray(dtype=ti.math.mat3, shape=n))
+                         q=vec3_ndarray(n), acc=vec3_ndarray(n), Pinv=ti.ndarray(dtype=ti.math.mat3, shape=n))
         return entry
 
     def _fused_setup(self, model: Model, entry: dict, x, psd: bool, blocks: dict):
@@ -369,9 +374,9 @@ class PCGSolver(LinearSolver):
             if whole and it < self.max_iter and rr > target2:
                 pair, rk, el = fused
                 k_it, rr, bad = _pcg_whole_serial(0.0, rz, target2, self.max_iter - it, z, p, q, r, y, mass,
-                                                  inv_mass, a_s, Pinv, *pair, rk["elements"], rk["n"], rk["off"],
-                                                  rk["ent"], rk["w"], rk["s"], el["blocks"], el["dinv"],
-                                                  el["elements"], el["n"], el["yt"], p2, rk["k"], el["k"], el["form"])
+                                                  inv_mass, a_s, Pinv, *pair, rk["elements"], rk["n"], rk["w"],
+                                                  el["blocks"], el["dinv"], el["elements"], el["n"], el["yt"], p2,
+                                                  w["acc"], rk["k"], el["k"], el["form"])
                 it += int(k_it)
                 if bad:
                     message = "A is not positive definite on a search direction (p.Ap <= 0)"

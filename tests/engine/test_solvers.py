@@ -356,6 +356,27 @@ def test_a_membrane_takes_the_fused_pcg_paths():
     assert solver._fused_setup(two, solver._work(two), x_nd, True, blocks) is None
 
 
+@pytest.mark.parametrize("scene", ["cloth", "membrane", "springs"])
+def test_whole_loop_pcg_is_the_fused_parallel_path_bit_for_bit(scene):
+    """The whole-loop serial kernel adds each element's product (rank-one factors, membrane blocks) to
+    its corners' sums as it is made; the fused parallel path gathers them over the slot incidence.
+    Both sum in the same order (element order = entries ascending per vertex), so on a mesh small
+    enough that Taichi runs the parallel loops and their reductions on one thread (under 512
+    vertices) the two solves are the same bit for bit, iterations included."""
+    model, x = SCENES[scene]()
+    assert model.n < 512
+    x_nd = vec3_ndarray(model.n, x)
+    b = vec3_ndarray(model.n, np.random.default_rng(5).standard_normal((model.n, 3)))
+    out = []
+    for serial in (True, False):
+        y = vec3_ndarray(model.n)
+        info = solvers.PCGSolver(1e-10, 1000, serial=serial).solve(model, x_nd, b, y, 1e4, 1.3)
+        assert info.converged and info.iterations > 10, info
+        out.append((info.iterations, info.residual, y.to_numpy()))
+    assert out[0][0] == out[1][0] and out[0][1] == out[1][1]
+    assert np.array_equal(out[0][2], out[1][2])
+
+
 def _graded_chain(decades: float, n: int = 40, seed: int = 3):
     """A chain of n unit masses (node 0 pinned) whose springs' stiffnesses span ``decades`` decades
     (log-uniform), slightly deformed, and a random right-hand side: cond(a M + H) ~ 10^decades."""
