@@ -197,7 +197,9 @@ def _pcg_whole_serial(beta0: float, rz0: float, target2: float, max_iter: ti.i32
     # iteration).  Starts from r, z, p set by _pcg_restart (beta0 = 0).  Same arithmetic as the
     # fused path: p = z + beta p ; q = A' p ; alpha = r.z / p.q ; y += alpha p ; r -= alpha q ;
     # z = P^-1 r.  Returns (iterations, r.r, 1 if p.q <= 0 else 0).
-    # Being serial, it adds each element's product to its corners' sums as it is made (rank-one
+    # Being serial, it computes each pair's term once, adding it to both ends in the order of the
+    # pair incidence (neighbours ascending: a vertex's lower neighbours were swept before it), and
+    # it adds each element's product to its corners' sums as it is made (rank-one
     # elements to racc, the block energy's to acc), in element order: the order of the slot
     # incidence (entries ascending per vertex), so each sum is bit for bit the fused path's gather,
     # without reading the incidence or the products back.
@@ -214,7 +216,9 @@ def _pcg_whole_serial(beta0: float, rz0: float, target2: float, max_iter: ti.i32
                 acc[i] = ti.math.vec3(0.0)
                 racc[i] = ti.math.vec3(0.0)
         for i in range(n):
-            p[i] = z[i] + beta * p[i]
+            pi = z[i] + beta * p[i]
+            p[i] = pi
+            q[i] = a * mass[i] * pi
         for e in range(n_elements):
             se = 0.0
             for sl in ti.static(range(k)):
@@ -228,9 +232,13 @@ def _pcg_whole_serial(beta0: float, rz0: float, target2: float, max_iter: ti.i32
         pq = 0.0
         for i in range(n):
             pi = p[i]
-            qi = a * mass[i] * pi
+            qi = q[i]   # a' m_i p_i + K_e (p_i - p_j) of its pairs to lower j, added in ascending j
             for m in range(s_off[i], s_off[i + 1]):
-                qi += s_blocks[s_edge[m]] @ (pi - p[s_other[m]])
+                j = s_other[m]
+                if j > i:   # each pair once: its term goes to both ends (K_e (p_j - p_i) is -t exactly)
+                    t = s_blocks[s_edge[m]] @ (pi - p[j])
+                    qi += t
+                    q[j] = q[j] - t
             qi = qi + racc[i]  # the fused path's rank-one sum
             qi = qi + acc[i]   # the fused path's q += gather(products)
             racc[i] = ti.math.vec3(0.0)
