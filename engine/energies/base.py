@@ -27,8 +27,8 @@ offers to the PCG solver (:mod:`engine.solvers`):
                    gather the products per vertex over ``slot_incidence``.
 ``"deformation-blocks"`` (with "element-blocks", triangles): :meth:`deformation_blocks(x, psd)` is
                    (m, 3) mat3, the Hessian by the deformation gradient's columns, and the
-                   ti.func ``deformation_product(fblocks, Dinv, elements, z, p, beta, yt, e)``
-                   writes yt[e, a] = (H_e (z + beta p))_a from them and the rest frames ``Dinv``
+                   ti.func ``deformation_corners(fblocks, Dinv, elements, z, p, beta, e)``
+                   returns the k vectors (H_e (z + beta p))_a from them and the rest frames ``Dinv``
                    (the energy's): the PCG's fused paths use it instead of the stored blocks.
 """
 import numpy as np

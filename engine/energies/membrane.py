@@ -23,7 +23,7 @@ import taichi as ti
 
 from engine.energies.base import Energy, gather_slot_blocks_kernel
 from engine.energies.membrane_kernels import (block_products_kernel, damping_blocks_kernel, damping_products_kernel,
-                                             deformation_product, gather_corners_kernel, membrane_block,
+                                             deformation_corners, gather_corners_kernel, membrane_block,
                                              membrane_deformation_blocks_kernel, membrane_energies_kernel,
                                              membrane_energy_kernel, membrane_forces_kernel, membrane_hessian_kernel,
                                              membrane_products_kernel, negate_corners)
@@ -83,7 +83,7 @@ class MembraneEnergy(Energy):
     As a stencil (engine/energies/base.py): k = 3, ``elements`` = the triangles, ``block`` reads
     :meth:`hessian_blocks`' (m, 9) layout, product "blocks"; force form "corner-gather"
     (:meth:`corner_force_launch`, ``per_corner``, ``slot_incidence``); product "deformation-blocks":
-    :meth:`deformation_blocks` (27 numbers per triangle) and ``deformation_product``, the product
+    :meth:`deformation_blocks` (27 numbers per triangle) and ``deformation_corners``, the product
     the PCG's fused paths take per iteration instead of the nine stored blocks (81 numbers).
     """
 
@@ -91,7 +91,7 @@ class MembraneEnergy(Energy):
     stencil_size = 3
     block = staticmethod(membrane_block)
     products = frozenset({"blocks", "element-blocks", "deformation-blocks"})
-    deformation_product = staticmethod(deformation_product)
+    deformation_corners = staticmethod(deformation_corners)
     force_form = "corner-gather"
 
     def __init__(self, rest_positions, triangles, model: str = "stvk", Y=None, nu=None, k_stretch=None,
@@ -214,7 +214,7 @@ class MembraneEnergy(Energy):
 
     def deformation_blocks(self, x, psd: bool = True):
         """(m, 3) mat3 ndarray: (A_uu, A_uv, A_vv) of every triangle, its Hessian by F's columns
-        (engine/energies/triangle.py, deformation_blocks); ``deformation_product`` multiplies with
+        (engine/energies/triangle.py, deformation_blocks); ``deformation_corners`` multiplies with
         them. Reused by the next call."""
         if self._fblocks is None:
             self._fblocks = ti.ndarray(dtype=ti.math.mat3, shape=(self.n_elements, 3))

@@ -99,10 +99,11 @@ def membrane_deformation_blocks_kernel(x: vec3_array, tris: triangle_array, Dinv
 
 
 @ti.func
-def deformation_product(fblocks: ti.template(), Dinv: ti.template(), tris: ti.template(), z: ti.template(),
-                        p: ti.template(), beta, yt: ti.template(), t):
-    """yt[t, a] = (H_t d)_a for d = z + beta p at the triangle's corners, from its deformation blocks
-    (triangle.deformation_blocks): dw_j = sum_b g_bj d_b, r_i = sum_j A_ij dw_j, (H d)_a = sum_i g_ai r_i."""
+def deformation_corners(fblocks: ti.template(), Dinv: ti.template(), tris: ti.template(), z: ti.template(),
+                        p: ti.template(), beta, t):
+    """((H_t d)_0, (H_t d)_1, (H_t d)_2) for d = z + beta p at the triangle's corners, from its
+    deformation blocks (triangle.deformation_blocks): dw_j = sum_b g_bj d_b, r_i = sum_j A_ij dw_j,
+    (H d)_a = sum_i g_ai r_i."""
     D = Dinv[t]
     d0 = z[tris[t, 0]] + beta * p[tris[t, 0]]
     d1 = z[tris[t, 1]] + beta * p[tris[t, 1]] - d0
@@ -114,9 +115,7 @@ def deformation_product(fblocks: ti.template(), Dinv: ti.template(), tris: ti.te
     rv = Auv.transpose() @ dwu + fblocks[t, 2] @ dwv
     y1 = D[0, 0] * ru + D[0, 1] * rv
     y2 = D[1, 0] * ru + D[1, 1] * rv
-    yt[t, 0] = -(y1 + y2)
-    yt[t, 1] = y1
-    yt[t, 2] = y2
+    return -(y1 + y2), y1, y2
 
 
 @ti.kernel
