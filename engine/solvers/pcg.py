@@ -296,9 +296,9 @@ class PCGSolver(LinearSolver):
         entry = self._entry(model)
         if "r" not in entry:
             n = model.n
-            # acc: the whole-loop kernel's rank-one sums (p2, free there, its block energy's)
+            # racc: the whole-loop kernel's rank-one sums (p2, free there, holds its block energy's, acc)
             entry.update(r=vec3_ndarray(n), z=vec3_ndarray(n), p=vec3_ndarray(n), p2=vec3_ndarray(n),
-                         q=vec3_ndarray(n), acc=vec3_ndarray(n), Pinv=ti.ndarray(dtype=ti.math.mat3, shape=n))
+                         q=vec3_ndarray(n), racc=vec3_ndarray(n), Pinv=ti.ndarray(dtype=ti.math.mat3, shape=n))
         return entry
 
     def _fused_setup(self, model: Model, entry: dict, x, psd: bool, blocks: dict):
@@ -391,7 +391,7 @@ class PCGSolver(LinearSolver):
                 k_it, rr, bad = _pcg_whole_serial(0.0, rz, target2, self.max_iter - it, z, p, q, r, y, mass,
                                                   inv_mass, a_s, Pinv, *pair, rk["elements"], rk["n"], rk["w"],
                                                   el["blocks"], el["dinv"], el["elements"], el["n"], el["yt"], p2,
-                                                  w["acc"], rk["k"], el["k"], el["form"])
+                                                  w["racc"], rk["k"], el["k"], el["form"])
                 it += int(k_it)
                 if bad:
                     message = "A is not positive definite on a search direction (p.Ap <= 0)"

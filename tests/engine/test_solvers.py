@@ -359,10 +359,11 @@ def test_a_membrane_takes_the_fused_pcg_paths():
 @pytest.mark.parametrize("scene", ["cloth", "membrane", "springs"])
 def test_whole_loop_pcg_is_the_fused_parallel_path_bit_for_bit(scene):
     """The whole-loop serial kernel adds each element's product (rank-one factors, membrane blocks) to
-    its corners' sums as it is made; the fused parallel path gathers them over the slot incidence.
-    Both sum in the same order (element order = entries ascending per vertex), so on a mesh small
-    enough that Taichi runs the parallel loops and their reductions on one thread (under 512
-    vertices) the two solves are the same bit for bit, iterations included."""
+    its corners' sums as it is made, and each spring pair's term once to both ends; the fused parallel
+    path gathers them per vertex over the slot and pair incidences. Both sum in the same order
+    (elements, and neighbours, ascending per vertex), so on a mesh small enough that Taichi runs the
+    parallel loops and their reductions on one thread (under 512 vertices) the two solves are the
+    same bit for bit, iterations included."""
     model, x = SCENES[scene]()
     assert model.n < 512
     x_nd = vec3_ndarray(model.n, x)
