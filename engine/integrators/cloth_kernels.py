@@ -21,13 +21,14 @@ from engine.energies.hinge import hinge_forces, hinge_frame
 from engine.energies.springs import spring_force
 from engine.fields import int_array, scalar_array, vec3_array
 from engine.integrators.kernels import ACCEL_KICK, KICK_DRIFT, STEP, SYMPLECTIC_EULER, VELOCITY_VERLET, vertex_update
+from engine.tickets import (BLOCK_SLOTS, SPIN_LIMIT, SYNC_DONE, SYNC_SIZE, SYNC_STOP, SYNC_TICKET,  # noqa: F401
+                            start, wait_for_phase)
 
 # Layout of the plan's int array ``I`` (built by engine.integrators.explicit.cloth_plan): a header
 # of section starts, then the sections. The float array ``F`` holds the per-entry coefficients.
 (H_NB, H_N, H_VB, H_IN_OFF, H_IN_J, H_UP_OFF, H_UP_C, H_BFLAG, H_BND, H_NBND, H_HOFF, H_HV, H_F_IN, H_F_UP,
  H_F_H, H_F_G, H_MODE, H_BOFF, H_IN_V, H_IN_VOFF) = range(20)
 HEADER = 20
-BLOCK_SLOTS = 512  # loop iterations per block (see cloth_step)
 # what one cloth_step launch does
 CLOTH_SE, CLOTH_VV, CLOTH_VV_BEGIN = 0, 1, 2
 
@@ -159,11 +160,6 @@ def cloth_step(x: vec3_array, v: vec3_array, dt: float, w: vec3_array, I: int_ar
             x[j] = w[2 * I[H_N] + j]
 
 
-# cloth_steps' counters, each on a cache line of its own inside a 64-entry i32 array (entries
-# 16, 32, 48: no other allocation can share their lines), so that a thread polling one counter
-# does not contend with the other thread's writes to another, or to a neighbouring array
-SYNC_SIZE, SYNC_TICKET, SYNC_DONE, SYNC_STOP = 64, 16, 32, 48
-SPIN_LIMIT = 1 << 27  # polls (~3-10 s) of one wait before cloth_steps gives up and reports it (its default)
 
 
 @ti.func
@@ -195,18 +191,12 @@ def cloth_steps(x: vec3_array, v: vec3_array, dt: float, n_steps: ti.i32, w: vec
                 F: scalar_array, sync: int_array, spin_limit: ti.i32, what: ti.template(),
                 with_hinges: ti.template()) -> ti.i32:
     """``n_steps`` steps of :func:`cloth_step` (what = CLOTH_SE or CLOTH_VV) in ONE launch. A step is
-    two phases (see :func:`_cloth_phase`), each one task per block; the tasks are numbered in order
-    (phase p, block b: ticket p nb + b) and every thread of the launch takes the next ticket
-    (sync[SYNC_TICKET], an integer atomic), waits until the tasks of the phases before it are done (sync[SYNC_DONE]
-    counts them) and does it. Each task runs once and after all of the previous phase, so the
-    state is the one of n_steps single-step launches (bitwise), whatever the threads do; a thread
-    that starts late finds the others have done its share, and one thread alone does everything
-    (nothing waits for a thread that is not running). A parallel loop costs a wake-up of the thread
-    pool, 20-60 us here; a phase a few cache-line transfers. Returns 0, or 1 when a wait for the
-    tasks before a ticket exceeded ``spin_limit`` polls (the state is then part-way through a step)."""
-    sync[SYNC_TICKET] = 0
-    sync[SYNC_DONE] = 0
-    sync[SYNC_STOP] = 0
+    two phases (see :func:`_cloth_phase`), each one task per block, handed out by tickets
+    (engine.tickets): each task runs once and after all of the previous phase, so the state is the
+    one of n_steps single-step launches (bitwise), whatever the threads do. Returns 0, or 1 when a
+    wait for the tasks before a ticket exceeded ``spin_limit`` polls (the state is then part-way
+    through a step)."""
+    start(sync)
     for it in range(I[H_NB] * BLOCK_SLOTS):   # one worker per thread (see cloth_step's loop)
         if it % BLOCK_SLOTS == 0:
             nb = I[H_NB]
@@ -216,12 +206,7 @@ def cloth_steps(x: vec3_array, v: vec3_array, dt: float, n_steps: ti.i32, w: vec
                 if t >= last or sync[SYNC_STOP] != 0:
                     break
                 p = t // nb
-                k = 0
-                while ti.atomic_or(sync[SYNC_DONE], 0) < p * nb and sync[SYNC_STOP] == 0 and k < spin_limit:
-                    k += 1
-                if k >= spin_limit:
-                    sync[SYNC_STOP] = 1
-                if sync[SYNC_STOP] != 0:
+                if wait_for_phase(sync, p, nb, spin_limit) == 0:
                     break
                 _cloth_phase(p, t % nb, x, v, w, I, F, dt, what, with_hinges)
                 ti.atomic_add(sync[SYNC_DONE], 1)
