@@ -3,7 +3,7 @@
 G             standard gravity [m/s^2]; scenes hang their cloths and rods under it.
 CFL_SAFETY    fraction of the estimated stability limit an explicit scene steps at when it is
               sub-stepped to stay stable (dt <= CFL_SAFETY x dt_stable).
-SERIAL_BELOW  below this many vertices the PCG solver runs its whole CG loop in one serial kernel
+SERIAL_BELOW  below this many vertices the PCG solver runs its whole CG loop in one kernel
               (measured on the 2-core CPU, backward Euler on the cloth, ms per CG iteration:
               32x32 0.10 serial vs 0.60 parallel three-launch; 64x64 0.37 vs 0.84; 128x128 1.52 vs
               1.52: a parallel launch costs ~0.1 ms and each ndarray argument ~5 us of Python, and
@@ -13,6 +13,11 @@ SERIAL_BELOW  below this many vertices the PCG solver runs its whole CG loop in 
 G = 9.81
 CFL_SAFETY = 0.9
 SERIAL_BELOW = 20000
+# From this many vertices that whole-loop kernel runs on two vertex blocks (the two halves), whose
+# phases the threads share (engine.tickets); below it, one block on one thread (a phase's hand-over,
+# ~2-5 us on the 2-core CPU, would cost more than the work). Its partial sums follow the blocks, so
+# the split depends on the mesh alone and the kernel's result not on the number of threads.
+WHOLE_SPLIT_FROM = 512
 
 # Spring-only models below this many vertices run many explicit steps per kernel launch (one
 # serial kernel: a chain or a frame is cheaper to step serially than to launch kernels for).

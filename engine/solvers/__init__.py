@@ -32,13 +32,18 @@ Four names share one interface (:func:`make_solver`):
               * whole-loop (at most one "pair-gather" energy, e.g. springs, at most one
                 "rank-one" energy, e.g. bending, and at most one "element-blocks" energy,
                 e.g. a membrane, nothing else; psd; below SERIAL_BELOW vertices): the entire
-                CG loop is one serial kernel: pair blocks K_e (hessian_blocks, once per solve),
+                CG loop is one kernel: pair blocks K_e (hessian_blocks, once per solve),
                 each pair's term computed once in a sweep over the vertices and added to both
                 ends, the rank-one energy as its Gauss-Newton factors w_e (H_e = w_e w_e^T,
                 gauss_newton_factors, once per solve) and the element blocks' products each
-                added to their corners' sums as they are made (serial: no race; in the order of
-                the pair and slot incidences, so the sums are the fused path's gathers bit for
-                bit), dot products, axpys and the preconditioner fused.  No launch per iteration.
+                added to their corners' sums as they are made (in the order of the pair and
+                slot incidences, so the sums are the fused path's gathers bit for bit), dot
+                products, axpys and the preconditioner fused.  No launch per iteration.  Below
+                WHOLE_SPLIT_FROM vertices it is serial; from there it works on the mesh's two
+                halves, two phases per iteration handed to the threads by tickets
+                (engine.tickets), each half making the products of its own vertices; the dot
+                products are sums of the halves' partial sums, so the result is the same on
+                one thread or two.
               * fused parallel (same energies, larger meshes): three or four launches per
                 iteration (per-element s_e = w_e . p and/or H_e p; per-vertex direction +
                 product + p.q; step + preconditioner + r.z, r.r).

@@ -378,6 +378,38 @@ def test_whole_loop_pcg_is_the_fused_parallel_path_bit_for_bit(scene):
     assert np.array_equal(out[0][2], out[1][2])
 
 
+@pytest.mark.parametrize("scene", ["cloth", "membrane"])
+def test_two_block_whole_loop_pcg_is_the_same_on_one_thread_or_two(scene):
+    """From WHOLE_SPLIT_FROM vertices the whole-loop kernel works on the mesh's two halves, their phases
+    shared by the threads (engine.tickets): each block makes the element products and spring terms of
+    its own vertices (those reaching across the halves included) and the scalars are sums of the
+    halves' partial sums. So its solve is the same bit for bit whether two threads or one run it, run
+    after run; it meets the tolerance on the dense system, and it is the fused parallel path's solve to
+    round-off, in as many iterations."""
+    from engine.constants import WHOLE_SPLIT_FROM
+    N = 24
+    model, x = cloth(N) if scene == "cloth" else membrane(N=N)
+    assert model.n >= WHOLE_SPLIT_FROM
+    x_nd = vec3_ndarray(model.n, x)
+    b = vec3_ndarray(model.n, np.random.default_rng(5).standard_normal((model.n, 3)))
+    tol = 1e-10
+    out = {}
+    for name, kw in (("two", {}), ("again", {}), ("one thread", {"whole_threads": 1}), ("fused", {"serial": False})):
+        y = vec3_ndarray(model.n)
+        solver = solvers.PCGSolver(tol, 5000, **kw)
+        info = solver.solve(model, x_nd, b, y, 1e4, 1.3)
+        assert info.converged and info.iterations > 50 and solver.gave_up == 0, (name, info)
+        out[name] = (info.iterations, info.residual, y.to_numpy())
+    for name in ("again", "one thread"):
+        assert out[name][:2] == out["two"][:2] and np.array_equal(out[name][2], out["two"][2]), name
+    assert out["fused"][0] == out["two"][0]
+    y2, yf = out["two"][2], out["fused"][2]
+    assert np.abs(y2 - yf).max() <= 1e-9 * np.abs(yf).max()
+    A, free = dense_system(model, x_nd, 1e4, 1.3)
+    bf = b.to_numpy().reshape(-1)[free]
+    assert np.linalg.norm(A @ y2.reshape(-1)[free] - bf) <= 1.001 * tol * np.linalg.norm(bf)
+
+
 def _graded_chain(decades: float, n: int = 40, seed: int = 3):
     """A chain of n unit masses (node 0 pinned) whose springs' stiffnesses span ``decades`` decades
     (log-uniform), slightly deformed, and a random right-hand side: cond(a M + H) ~ 10^decades."""
