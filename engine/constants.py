@@ -3,11 +3,14 @@
 G             standard gravity [m/s^2]; scenes hang their cloths and rods under it.
 CFL_SAFETY    fraction of the estimated stability limit an explicit scene steps at when it is
               sub-stepped to stay stable (dt <= CFL_SAFETY x dt_stable).
-SERIAL_BELOW  below this many vertices the PCG solver runs its whole CG loop in one kernel
-              (measured on the 2-core CPU, backward Euler on the cloth, ms per CG iteration:
-              32x32 0.10 serial vs 0.60 parallel three-launch; 64x64 0.37 vs 0.84; 128x128 1.52 vs
-              1.52: a parallel launch costs ~0.1 ms and each ndarray argument ~5 us of Python, and
-              the loops are memory-bound, so a second thread gains little below this size).
+SERIAL_BELOW  with more than two threads, below this many vertices the PCG solver runs its whole CG
+              loop in one kernel (above it, three parallel launches per iteration that use every
+              thread); with one or two threads, at every size. Measured on the 2-core CPU, backward
+              Euler on the cloth, ms per CG iteration, when that kernel was serial: 32x32 0.10 vs
+              0.60 parallel three-launch; 64x64 0.37 vs 0.84; 128x128 1.52 vs 1.52 (a parallel launch
+              costs ~0.1 ms and each ndarray argument ~5 us of Python). On the mesh's two halves
+              (WHOLE_SPLIT_FROM) it is ahead at every size on two threads: one backward-Euler step at
+              256x256, 14.3 s vs 29.3 s (cloth), 10.1 s vs 16.0 s (membrane).
 """
 
 G = 9.81

@@ -31,7 +31,8 @@ Four names share one interface (:func:`make_solver`):
               (``Energy.products``, engine/energies/base.py):
               * whole-loop (at most one "pair-gather" energy, e.g. springs, at most one
                 "rank-one" energy, e.g. bending, and at most one "element-blocks" energy,
-                e.g. a membrane, nothing else; psd; below SERIAL_BELOW vertices): the entire
+                e.g. a membrane, nothing else; psd; on one or two threads, or below
+                SERIAL_BELOW vertices): the entire
                 CG loop is one kernel: pair blocks K_e (hessian_blocks, once per solve),
                 each pair's term computed once in a sweep over the vertices and added to both
                 ends, the rank-one energy as its Gauss-Newton factors w_e (H_e = w_e w_e^T,
@@ -44,7 +45,7 @@ Four names share one interface (:func:`make_solver`):
                 (engine.tickets), each half making the products of its own vertices; the dot
                 products are sums of the halves' partial sums, so the result is the same on
                 one thread or two.
-              * fused parallel (same energies, larger meshes): three or four launches per
+              * fused parallel (same energies, larger meshes on more threads): three or four launches per
                 iteration (per-element s_e = w_e . p and/or H_e p; per-vertex direction +
                 product + p.q; step + preconditioner + r.z, r.r).
               * generic (any energies, exact Hessian, extra term): each energy's

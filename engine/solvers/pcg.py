@@ -402,13 +402,21 @@ def _pcg_whole(rz0: float, target2: float, max_iter: ti.i32,
     return ti.math.vec4(out[0], out[1], out[2], gave_up)
 
 
+def _threads() -> int:
+    """Taichi's CPU threads (2 before engine.runtime.init)."""
+    from engine.runtime import current
+    info = current()
+    return info.threads if info is not None else 2
+
+
 class PCGSolver(LinearSolver):
     """Matrix-free block-Jacobi preconditioned CG with Baraff-Witkin filtering (module docstring).
 
     Fast paths (``fused=True``), used when the model's energies are at most one declaring the
     "pair-gather" product (springs), at most one declaring "rank-one" (bending) and at most one
     declaring "element-blocks" (a membrane: per-element H_e p, then gathered), nothing else,
-    and psd=True: below SERIAL_BELOW vertices (or ``serial=True``) the whole CG loop is one kernel
+    and psd=True: on one or two threads, or below SERIAL_BELOW vertices (or ``serial=True``), the whole
+    CG loop is one kernel
     (:func:`_pcg_whole`: serial below WHOLE_SPLIT_FROM vertices, else on the mesh's two halves shared
     by the threads; ``whole_threads=1`` runs the halves on one thread, the same result); otherwise
     three parallel launches per iteration (per-element s_e = w_e . p with the
@@ -424,7 +432,7 @@ class PCGSolver(LinearSolver):
                  whole_threads: int | None = None):
         super().__init__(tol, max_iter)
         self.fused = bool(fused)
-        self.serial = serial  # None: the whole-loop kernel below SERIAL_BELOW vertices
+        self.serial = serial  # None: the whole-loop kernel on <= 2 threads, else below SERIAL_BELOW vertices
         self.whole_threads = whole_threads  # None: the whole-loop kernel's blocks shared by Taichi's threads; 1: one
         self.gave_up = 0      # whole-loop solves in which a worker gave up waiting (engine.tickets)
 
@@ -543,7 +551,7 @@ class PCGSolver(LinearSolver):
         blocks = {}
         plan = hessian_plan(model, x, psd, scaled_operator(extra, c), blocks, w["work"])
         fused = None if scaled_operator(extra, c) is not None else self._fused_setup(model, w, x, psd, blocks)
-        serial = self.serial if self.serial is not None else model.n < SERIAL_BELOW
+        serial = self.serial if self.serial is not None else (model.n < SERIAL_BELOW or _threads() <= 2)
         whole = fused is not None and serial  # the whole CG loop in one serial kernel
 
         # block-Jacobi preconditioner P = blockdiag(a' m_i I + H_ii)
