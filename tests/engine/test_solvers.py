@@ -410,6 +410,40 @@ def test_two_block_whole_loop_pcg_is_the_same_on_one_thread_or_two(scene):
     assert np.linalg.norm(A @ y2.reshape(-1)[free] - bf) <= 1.001 * tol * np.linalg.norm(bf)
 
 
+@pytest.mark.parametrize("case", ["max_iter", "zero curvature"])
+def test_two_block_whole_loop_pcg_stops_like_the_fused_path(case):
+    """The two-half whole-loop kernel's other ways out, as the fused parallel path takes them and the same
+    on one thread or two: at the iteration limit (every task stops at the same phase; that many
+    iterations, not converged), and on a direction with p.Ap <= 0 (mass_coef 0 and a right-hand side on
+    a free vertex that no element touches: its preconditioner block is 0, so the first direction is 0)."""
+    N = 24
+    m3 = mesh.embed_3d(mesh.right_triangle_grid(N, N, 1.0, 1.0))
+    X = np.vstack([m3.vertices, [[3.0, 3.0, 3.0]]])   # the last vertex: in no element
+    model = Model(X, mass=np.append(mesh.lumped_masses(m3, 0.2), 0.01), pinned=[0, N - 1],
+                  gravity=[0, 0, -9.81])
+    model.add_energy(SpringEnergy.from_rest(X, m3.edges, c=500.0 * mesh.edge_measure(m3)))
+    x = X + 0.03 * np.random.default_rng(1).standard_normal(X.shape)
+    x_nd = vec3_ndarray(model.n, x)
+    rhs = np.random.default_rng(5).standard_normal((model.n, 3))
+    max_iter, a = 7, 1e4
+    if case == "zero curvature":
+        rhs[:-1] = 0.0
+        max_iter, a = 5000, 0.0
+    b = vec3_ndarray(model.n, rhs)
+    out = {}
+    for name, kw in (("two", {}), ("one thread", {"whole_threads": 1}), ("fused", {"serial": False})):
+        y = vec3_ndarray(model.n)
+        info = solvers.PCGSolver(1e-10, max_iter, **kw).solve(model, x_nd, b, y, a, 1.3)
+        out[name] = info
+        assert not info.converged, (name, info)
+        if case == "max_iter":
+            assert info.iterations == max_iter and info.residual > 1e-10, (name, info)
+        else:
+            assert "not positive definite" in info.message and info.iterations == 0, (name, info)
+    assert out["one thread"].iterations == out["two"].iterations == out["fused"].iterations
+    assert out["one thread"].residual == out["two"].residual
+
+
 def _graded_chain(decades: float, n: int = 40, seed: int = 3):
     """A chain of n unit masses (node 0 pinned) whose springs' stiffnesses span ``decades`` decades
     (log-uniform), slightly deformed, and a random right-hand side: cond(a M + H) ~ 10^decades."""
