@@ -284,7 +284,7 @@ class PCGSolver(LinearSolver):
         plan = hessian_plan(model, x, psd, scaled_operator(extra, c), blocks, w["work"])
         fused = None if scaled_operator(extra, c) is not None else self._fused_setup(model, w, x, psd, blocks)
         serial = self.serial if self.serial is not None else (model.n < SERIAL_BELOW or _threads() <= 2)
-        whole = fused is not None and serial  # the whole CG loop in one serial kernel
+        whole = fused is not None and serial  # the whole CG loop in one kernel (engine.solvers.pcg_whole)
 
         # block-Jacobi preconditioner P = blockdiag(a' m_i I + H_ii)
         _diag_init(mass, a_s, Pinv)

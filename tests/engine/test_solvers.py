@@ -68,7 +68,7 @@ def dense_system(model, x_nd, mass_coef, hess_coef=1.0, psd=True):
 
 
 SOLVER_VARIANTS = {
-    "pcg": lambda tol: make_solver("pcg", tol=tol),                                     # whole-loop serial kernel
+    "pcg": lambda tol: make_solver("pcg", tol=tol),                                     # whole-loop kernel
     "pcg-parallel": lambda tol: solvers.PCGSolver(tol, 1000, serial=False),              # 3 launches / iteration
     "pcg-generic": lambda tol: solvers.PCGSolver(tol, 1000, fused=False),                 # per-energy products
     "cholesky": lambda tol: make_solver("cholesky", tol=tol),
@@ -358,9 +358,9 @@ def test_a_membrane_takes_the_fused_pcg_paths():
 
 @pytest.mark.parametrize("scene", ["cloth", "membrane", "springs"])
 def test_whole_loop_pcg_is_the_fused_parallel_path_bit_for_bit(scene):
-    """The whole-loop serial kernel adds each element's product (rank-one factors, membrane blocks) to
-    its corners' sums as it is made, and each spring pair's term once to both ends; the fused parallel
-    path gathers them per vertex over the slot and pair incidences. Both sum in the same order
+    """The whole-loop kernel (serial below 512 vertices) adds each element's product (rank-one factors,
+    membrane blocks) to its corners' sums as it is made, and each spring pair's term once to both ends;
+    the fused parallel path gathers them per vertex over the slot and pair incidences. Both sum in the same order
     (elements, and neighbours, ascending per vertex), so on a mesh small enough that Taichi runs the
     parallel loops and their reductions on one thread (under 512 vertices) the two solves are the
     same bit for bit, iterations included."""
