@@ -240,3 +240,8 @@ def _finalise() -> None:
 def current() -> RuntimeInfo | None:
     """The active runtime configuration, or None before :func:`init`."""
     return _current
+
+
+def threads(default: int) -> int:
+    """The CPU threads asked of the active runtime, or ``default`` before :func:`init`."""
+    return default if _current is None else int(_current.threads)

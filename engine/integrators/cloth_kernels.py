@@ -21,8 +21,7 @@ from engine.energies.hinge import hinge_forces, hinge_frame
 from engine.energies.springs import spring_force
 from engine.fields import int_array, scalar_array, vec3_array
 from engine.integrators.kernels import ACCEL_KICK, KICK_DRIFT, STEP, SYMPLECTIC_EULER, VELOCITY_VERLET, vertex_update
-from engine.tickets import (BLOCK_SLOTS, SPIN_LIMIT, SYNC_DONE, SYNC_SIZE, SYNC_STOP, SYNC_TICKET,  # noqa: F401
-                            start, wait_for_phase)
+from engine.tickets import BLOCK_SLOTS, SYNC_DONE, SYNC_STOP, SYNC_TICKET, start, wait_for_phase
 
 # Layout of the plan's int array ``I`` (built by engine.integrators.explicit.cloth_plan): a header
 # of section starts, then the sections. The float array ``F`` holds the per-entry coefficients.
@@ -158,8 +157,6 @@ def cloth_step(x: vec3_array, v: vec3_array, dt: float, w: vec3_array, I: int_ar
         for q in range(I[H_NBND]):
             j = I[I[H_BND] + q]
             x[j] = w[2 * I[H_N] + j]
-
-
 
 
 @ti.func

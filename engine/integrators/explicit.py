@@ -20,6 +20,7 @@ import math
 
 import numpy as np
 
+from engine import tickets
 from engine.fields import int_ndarray, scalar_ndarray, vec3_ndarray, zero_vec3
 from engine.integrators import batched_steps as B
 from engine.integrators import cloth_kernels as C
@@ -200,7 +201,7 @@ def cloth_stepper(model: Model, method: str = "symplectic-euler", n_blocks: int 
         w = d["cloth_w"] = vec3_ndarray(4 * n)  # spring sums, hinge sums, boundary x, Verlet acceleration
     sync = d.get("cloth_sync")
     if sync is None:
-        sync = d["cloth_sync"] = int_ndarray(np.zeros(C.SYNC_SIZE))
+        sync = d["cloth_sync"] = int_ndarray(np.zeros(tickets.SYNC_SIZE))
     with_h = sig == ("springs", "hinges")
     what = CLOTH_METHODS[method]
     launch = BoundKernel(C.cloth_step, (w, I, F), (what, with_h, n_boundary > 0))
@@ -211,7 +212,7 @@ def cloth_stepper(model: Model, method: str = "symplectic-euler", n_blocks: int 
     # many steps per launch with a thread per block and a core per thread (cloth_steps' threads
     # spin while they wait for each other: on a shared core that would cost a time slice)
     nb = int(I.to_numpy()[C.H_NB])
-    multi = BoundKernel(C.cloth_steps, (w, I, F, sync, C.SPIN_LIMIT), (what, with_h)) \
+    multi = BoundKernel(C.cloth_steps, (w, I, F, sync, tickets.SPIN_LIMIT), (what, with_h)) \
         if nb <= _threads() <= _cores() else None
 
     def steps(state, dt, left):
@@ -220,7 +221,7 @@ def cloth_stepper(model: Model, method: str = "symplectic-euler", n_blocks: int 
                 k = min(left, MULTI_STEP_CHUNK)
                 if multi(state.x, state.v, dt, k):
                     zero_vec3(w)  # the sums a block left in it (a launch starts from zero sums)
-                    raise RuntimeError(f"the many-steps cloth kernel gave up: a thread waited more than {C.SPIN_LIMIT} "
+                    raise RuntimeError(f"the many-steps cloth kernel gave up: a thread waited more than {tickets.SPIN_LIMIT} "
                                        f"polls for the tasks before its own (the state is part-way through a step); "
                                        f"is every CPU thread of the runtime really running? ELASTIC_THREADS=1 avoids it")
                 left -= k
@@ -291,8 +292,7 @@ MULTI_STEP_CHUNK = 1 << 20  # steps per cloth_steps launch at most (its barrier 
 
 def _threads() -> int:
     from engine import runtime
-    info = runtime.current()
-    return 1 if info is None else int(info.threads)
+    return runtime.threads(1)
 
 
 def _cores() -> int:

@@ -227,15 +227,14 @@ class PardisoSolver(DirectSolver):
         entry = super()._setup(model)
         if "pattern" not in entry:
             import scipy.sparse
-            from engine.runtime import current
+            from engine.runtime import threads
             pattern = CSRPattern(model)
             values = np.zeros(pattern.nnz, dtype=np.float64)
             N = 3 * model.n
             A = scipy.sparse.csr_matrix((values, pattern.indices, pattern.indptr), shape=(N, N), copy=False)
             A.has_sorted_indices = True
             entry["pattern"], entry["matrix"] = pattern, A
-            info = current()
-            entry["_pardiso_threads"] = info.threads if info is not None else 2
+            entry["_pardiso_threads"] = threads(2)
         return entry
 
     def assemble_values(self, model: Model, entry: dict, x, a_s: float, psd: bool, extra) -> np.ndarray:

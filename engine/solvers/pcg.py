@@ -5,7 +5,7 @@ import math
 
 import taichi as ti
 
-from engine import tickets
+from engine import runtime, tickets
 from engine.constants import SERIAL_BELOW
 from engine.energies.base import slot_gather
 from engine.fields import (free_dot, int_array, int_array2, mat2_array, mat3_array, mat3_array2,
@@ -177,13 +177,6 @@ def _fused_direction_product(beta: float, z: vec3_array, p: vec3_array, p_new: v
     return acc
 
 
-def _threads() -> int:
-    """Taichi's CPU threads (2 before engine.runtime.init)."""
-    from engine.runtime import current
-    info = current()
-    return info.threads if info is not None else 2
-
-
 class PCGSolver(LinearSolver):
     """Matrix-free block-Jacobi preconditioned CG with Baraff-Witkin filtering (module docstring).
 
@@ -283,7 +276,7 @@ class PCGSolver(LinearSolver):
         blocks = {}
         plan = hessian_plan(model, x, psd, scaled_operator(extra, c), blocks, w["work"])
         fused = None if scaled_operator(extra, c) is not None else self._fused_setup(model, w, x, psd, blocks)
-        serial = self.serial if self.serial is not None else (model.n < SERIAL_BELOW or _threads() <= 2)
+        serial = self.serial if self.serial is not None else (model.n < SERIAL_BELOW or runtime.threads(2) <= 2)
         whole = fused is not None and serial  # the whole CG loop in one kernel (engine.solvers.pcg_whole)
 
         # block-Jacobi preconditioner P = blockdiag(a' m_i I + H_ii)

@@ -5,6 +5,7 @@ vertex blocks, launched directly or through Taichi's own call; and the two-pass 
 import numpy as np
 import pytest
 
+from engine import tickets
 from engine.integrators import cloth_kernels as C
 from engine.integrators import launch
 from engine.integrators.launch import BoundKernel
@@ -99,8 +100,8 @@ def test_many_steps_kernel_with_more_blocks_than_threads():
     v0 = start(model, seed=19)
     dt = 0.5 * stable_dt_estimate(model)
     I, F, _ = cloth_plan(model, runtime.current().threads + 3)
-    w, sync = vec3_ndarray(4 * model.n), int_ndarray(np.zeros(C.SYNC_SIZE))
-    steps = BoundKernel(C.cloth_steps, (w, I, F, sync, C.SPIN_LIMIT), (C.CLOTH_SE, True))
+    w, sync = vec3_ndarray(4 * model.n), int_ndarray(np.zeros(tickets.SYNC_SIZE))
+    steps = BoundKernel(C.cloth_steps, (w, I, F, sync, tickets.SPIN_LIMIT), (C.CLOTH_SE, True))
     st = model.make_state(None, v0)
     assert steps(st.x, st.v, dt, 20) == 0
     x_ref, v_ref, _ = run(model, v0, dt, 20, "symplectic-euler", False)
