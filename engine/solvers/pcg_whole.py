@@ -35,11 +35,17 @@ W_DONE = 2   # sync[SYNC_STOP] when the loop ended (converged, max_iter or p.q <
 
 
 @ti.func
-def _part_sum(parts: ti.template(), slot, nb, c):
-    # sum over the blocks (ascending) of entry c of the partial sums in ring slot ``slot``
-    s = parts[(slot * nb) * 3 + c]
+def _part(kk, nb, blk, c):
+    # where iteration kk's partial sum c (0: p.q, 1: r.z, 2: r.r) of block blk lives: a ring of three iterations
+    return ((kk % 3) * nb + blk) * 3 + c
+
+
+@ti.func
+def _part_sum(parts: ti.template(), kk, nb, c):
+    # iteration kk's sum c over the blocks, in block order
+    s = parts[_part(kk, nb, 0, c)]
     for blk in range(1, nb):
-        s += parts[(slot * nb + blk) * 3 + c]
+        s += parts[_part(kk, nb, blk, c)]
     return s
 
 
@@ -144,7 +150,7 @@ def _whole_products(blk, kk, beta, z: ti.template(), p: ti.template(), pn: ti.te
         q[i] = qi
         if inv_mass[i] > 0.0:
             pq += pi.dot(qi)
-    parts[((kk % 3) * nb + blk) * 3] = pq
+    parts[_part(kk, nb, blk, 0)] = pq
 
 
 @ti.kernel
@@ -189,7 +195,7 @@ def pcg_whole(rz0: float, target2: float, max_iter: ti.i32,
                 if ph % 2 == 0:
                     beta = 0.0
                     if kk > 0:
-                        rr = _part_sum(parts, (kk - 1) % 3, nb, 2)
+                        rr = _part_sum(parts, kk - 1, nb, 2)
                         if rr <= target2 or kk >= max_iter:
                             out[0] = kk
                             out[1] = rr
@@ -198,19 +204,19 @@ def pcg_whole(rz0: float, target2: float, max_iter: ti.i32,
                         else:
                             rz_old = rz0
                             if kk > 1:
-                                rz_old = _part_sum(parts, (kk - 2) % 3, nb, 1)
-                            beta = _part_sum(parts, (kk - 1) % 3, nb, 1) / rz_old
+                                rz_old = _part_sum(parts, kk - 2, nb, 1)
+                            beta = _part_sum(parts, kk - 1, nb, 1) / rz_old
                     if done == 0:
                         _whole_products(blk, kk, beta, z, p, pn, q, mass, inv_mass, a, s_off, s_edge, s_other,
                                         s_blocks, elements, w, c_blocks, c_dinv, c_elements, acc, racc, B, parts,
                                         k, kc, form, one_block)
                 else:
-                    pq = _part_sum(parts, kk % 3, nb, 0)
+                    pq = _part_sum(parts, kk, nb, 0)
                     rz = rz0
                     rr_prev = target2 + 1.0
                     if kk > 0:
-                        rz = _part_sum(parts, (kk - 1) % 3, nb, 1)
-                        rr_prev = _part_sum(parts, (kk - 1) % 3, nb, 2)
+                        rz = _part_sum(parts, kk - 1, nb, 1)
+                        rr_prev = _part_sum(parts, kk - 1, nb, 2)
                     if pq <= 0.0:
                         out[0] = kk
                         out[1] = rr_prev
@@ -224,8 +230,8 @@ def pcg_whole(rz0: float, target2: float, max_iter: ti.i32,
                                 acc2 += step_vertex(i, alpha, pn, q, Pinv, y, r, z)
                             if ti.static(not one_block):
                                 p[i] = pn[i]
-                        parts[((kk % 3) * nb + blk) * 3 + 1] = acc2[0]
-                        parts[((kk % 3) * nb + blk) * 3 + 2] = acc2[1]
+                        parts[_part(kk, nb, blk, 1)] = acc2[0]
+                        parts[_part(kk, nb, blk, 2)] = acc2[1]
                 if done == 1:
                     sync[tickets.SYNC_STOP] = W_DONE   # every task of this phase decides alike
                     break
