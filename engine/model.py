@@ -20,7 +20,7 @@ import numpy as np
 import taichi as ti
 
 from engine.energies.base import Energy
-from engine.energies.masses import add_gravity_potential
+from engine.energies.masses import add_gravity_potential, finish_force
 from engine.energies.springs import SpringEnergy
 from engine.errors import ModelError
 from engine.fields import (copy_vec3, float_dtype, per_item, scalar_array, scalar_ndarray, vec3_array, vec3_ndarray,
@@ -42,10 +42,7 @@ def gravity_energy_kernel(x: vec3_array, mass: scalar_array, inv_mass: scalar_ar
 def finish_forces_kernel(f: vec3_array, mass: scalar_array, inv_mass: scalar_array, g: ti.math.vec3):
     # f_i += m_i g for free vertices (gravity = -dW_g/dx_i); pinned vertices get zero force
     for i in range(f.shape[0]):
-        if inv_mass[i] > 0.0:
-            f[i] += mass[i] * g
-        else:
-            f[i] = ti.math.vec3(0.0)
+        f[i] = finish_force(f[i], mass[i], inv_mass[i], g)
 
 
 # --------------------------------------------------------------------------------------------

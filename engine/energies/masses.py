@@ -42,3 +42,13 @@ def add_gravity_potential(W, x: ti.template(), mass: ti.template(), inv_mass: ti
         if inv_mass[i] > 0.0:
             acc -= mass[i] * g.dot(x[i])
     return acc
+
+
+@ti.func
+def finish_force(f_i, m, inv_m, g):
+    """A vertex's whole force from its elastic force f_i (N): f_i + m g for a free vertex (the weight,
+    -dW_g/dx_i), 0 for a pinned one (inverse mass 0)."""
+    out = ti.math.vec3(0.0)
+    if inv_m > 0.0:
+        out = f_i + m * g
+    return out

@@ -20,6 +20,7 @@ import taichi as ti
 from engine.energies.hinge import hinge_forces, hinge_frame
 from engine.energies.springs import spring_force
 from engine.fields import int_array, scalar_array, vec3_array
+from engine.energies.masses import finish_force
 from engine.integrators.kernels import ACCEL_KICK, KICK_DRIFT, STEP, SYMPLECTIC_EULER, VELOCITY_VERLET, vertex_update
 from engine.tickets import BLOCK_SLOTS, SYNC_DONE, SYNC_STOP, SYNC_TICKET, start, wait_for_phase
 
@@ -28,8 +29,8 @@ from engine.tickets import BLOCK_SLOTS, SYNC_DONE, SYNC_STOP, SYNC_TICKET, start
 (H_NB, H_N, H_VB, H_IN_OFF, H_IN_J, H_UP_OFF, H_UP_C, H_BFLAG, H_BND, H_NBND, H_HOFF, H_HV, H_F_IN, H_F_UP,
  H_F_H, H_F_G, H_MODE, H_BOFF, H_IN_V, H_IN_VOFF) = range(20)
 HEADER = 20
-# what one cloth_step launch does
-CLOTH_SE, CLOTH_VV, CLOTH_VV_BEGIN = 0, 1, 2
+# what one cloth_step launch does (CLOTH_FORCES: cloth_forces, the forces only)
+CLOTH_SE, CLOTH_VV, CLOTH_VV_BEGIN, CLOTH_FORCES = 0, 1, 2, 3
 
 
 @ti.func
@@ -66,7 +67,8 @@ def _cloth_block(b, x: ti.template(), v: ti.template(), w: ti.template(), I: ti.
        its lower neighbours must come first: they do, since they are all below it); then i's
        forces are complete and i is updated. (E2): an interior vertex (read by no other block)
        drifts in place, a boundary vertex's new x goes to w[2n + i] (copied after the loop).
-       (E3) ACCEL_KICK: a (in w[3n + i]) and v only."""
+       (E3) ACCEL_KICK: a (in w[3n + i]) and v only. CLOTH_FORCES: i's elastic force goes to v[i]
+       (v is then the force array; nothing else is written)."""
     n = I[H_N]
     g = ti.math.vec3(F[I[H_F_G]], F[I[H_F_G] + 1], F[I[H_F_G] + 2])
     mode = I[H_MODE]
@@ -116,7 +118,9 @@ def _cloth_block(b, x: ti.template(), v: ti.template(), w: ti.template(), I: ti.
         if ti.static(with_hinges):
             f += w[n + i]
             w[n + i] = ti.math.vec3(0.0)
-        if ti.static(what == CLOTH_SE):
+        if ti.static(what == CLOTH_FORCES):
+            v[i] = f
+        elif ti.static(what == CLOTH_SE):
             xn, vn, an = vertex_update(SYMPLECTIC_EULER, STEP, xi, v[i], xi, f, F[i], g, dt, ti.math.vec3(0.0))
             v[i] = vn
             if I[I[H_BFLAG] + i] != 0:
@@ -157,6 +161,22 @@ def cloth_step(x: vec3_array, v: vec3_array, dt: float, w: vec3_array, I: int_ar
         for q in range(I[H_NBND]):
             j = I[I[H_BND] + q]
             x[j] = w[2 * I[H_N] + j]
+
+
+@ti.kernel
+def cloth_forces(x: vec3_array, f: vec3_array, w: vec3_array, I: int_array, F: scalar_array, mass: scalar_array,
+                 with_hinges: ti.template()):
+    """f = the model's forces at x, as engine.model.Model.forces computes them (each vertex's springs,
+    then its hinges, then m g; pinned vertices 0), bitwise: the blocks' loop of :func:`cloth_step`
+    writing each vertex's elastic force (CLOTH_FORCES), then a per-vertex loop adding the weight
+    (engine.energies.masses.finish_force). ``mass``: the model's masses (the plan's F holds inverse masses and g);
+    w: the plan's work array (its sums are left zero)."""
+    for it in range(I[H_NB] * BLOCK_SLOTS):   # see cloth_step's loop
+        if it % BLOCK_SLOTS == 0:
+            _cloth_block(it // BLOCK_SLOTS, x, f, w, I, F, 0.0, CLOTH_FORCES, with_hinges)
+    g = ti.math.vec3(F[I[H_F_G]], F[I[H_F_G] + 1], F[I[H_F_G] + 2])
+    for i in range(f.shape[0]):
+        f[i] = finish_force(f[i], mass[i], F[i], g)
 
 
 @ti.func

@@ -173,6 +173,45 @@ class FastStep:
         self._steps(state, float(dt), int(n_steps))
 
 
+def _cloth_parts(model: Model, n_blocks: int | None, work: dict | None):
+    """What the cloth kernels take for a springs [+ one hinge energy] model: (I, F, boundary count, work
+    array w, with hinges, the work dict), or None for another model or one whose incidence has no
+    block order (:func:`cloth_plan`). ``n_blocks`` default :func:`cloth_blocks`; ``work``: the dict that
+    keeps w (a Stepper's: the Verlet acceleration in it outlives a plan made again; default a new one)."""
+    if n_blocks is None:
+        n_blocks = cloth_blocks(model.n)
+    sig = signature(model)
+    if sig not in (("springs",), ("springs", "hinges")):
+        return None
+    plan = cloth_plan(model, n_blocks)
+    if plan is None:
+        return None
+    I, F, n_boundary = plan
+    d = {} if work is None else work
+    w = d.get("cloth_w")
+    if w is None:  # per work dict (a stepper's), not per plan: the Verlet acceleration outlives a new plan
+        w = d["cloth_w"] = vec3_ndarray(4 * model.n)  # spring sums, hinge sums, boundary x, Verlet acceleration
+    return I, F, n_boundary, w, sig == ("springs", "hinges"), d
+
+
+def cloth_forces(model: Model, n_blocks: int | None = None, work: dict | None = None):
+    """``forces(x, f)``: f = the model's forces at x (:meth:`engine.model.Model.forces`, bitwise) in ONE
+    launch of :func:`engine.integrators.cloth_kernels.cloth_forces` (bound), for a springs [+ one hinge
+    energy] model; None for any other (then Model.forces: a zeroing, each energy's force kernels and
+    the weight, four or five launches). What an implicit stepper evaluates its Newton residual with."""
+    parts = _cloth_parts(model, n_blocks, work)
+    if parts is None:
+        return None
+    I, F, _, w, with_h, _ = parts
+    launch = BoundKernel(C.cloth_forces, (w, I, F, model.mass_nd), (with_h,))
+
+    def forces(x, f):
+        if f.shape[0] != model.n or x.shape[0] != model.n:
+            raise ValueError(f"x and f must have the model's {model.n} vertices (got {x.shape[0]} and {f.shape[0]})")
+        launch(x, f)
+    return forces
+
+
 def cloth_stepper(model: Model, method: str = "symplectic-euler", n_blocks: int | None = None,
                   work: dict | None = None) -> FastStep | None:
     """The :class:`FastStep` of ``method`` ("symplectic-euler" or "velocity-verlet": kick-drift, then
@@ -185,24 +224,14 @@ def cloth_stepper(model: Model, method: str = "symplectic-euler", n_blocks: int 
     ``n_blocks``: vertex blocks (default :func:`cloth_blocks`, one per thread); ``work``: the dict
     that keeps the kernel's work arrays (a Stepper's, so that the Verlet acceleration in them
     outlives a plan made again; default a new one)."""
-    if n_blocks is None:
-        n_blocks = cloth_blocks(model.n)
-    sig = signature(model)
-    if sig not in (("springs",), ("springs", "hinges")):
+    parts = _cloth_parts(model, n_blocks, work)
+    if parts is None:
         return None
-    plan = cloth_plan(model, n_blocks)
-    if plan is None:
-        return None
-    I, F, n_boundary = plan
+    I, F, n_boundary, w, with_h, d = parts
     n = model.n
-    d = {} if work is None else work
-    w = d.get("cloth_w")
-    if w is None:  # per work dict (a stepper's), not per plan: the Verlet acceleration outlives a new plan
-        w = d["cloth_w"] = vec3_ndarray(4 * n)  # spring sums, hinge sums, boundary x, Verlet acceleration
     sync = d.get("cloth_sync")
     if sync is None:
         sync = d["cloth_sync"] = int_ndarray(np.zeros(tickets.SYNC_SIZE))
-    with_h = sig == ("springs", "hinges")
     what = CLOTH_METHODS[method]
     launch = BoundKernel(C.cloth_step, (w, I, F), (what, with_h, n_boundary > 0))
     begin = None

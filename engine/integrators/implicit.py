@@ -258,6 +258,7 @@ class _StepProblem(newton.Problem):
 
     def __init__(self, be: BackwardEuler, ctx, state: State, dt: float, work: dict):
         self.be, self.solver, self.model, self.dt, self.work = be, ctx.solver, ctx.model, dt, work
+        self.forces = ctx.forces
         self.xn, self.v, self.rhs = work["xn"], state.v, work["rhs"]
         self.inv_dt2, self.a_dt = 1.0 / (dt * dt), be.rayleigh_alpha / dt
         self.mass_coef, self.hess_coef = newton_coefficients(dt, be.rayleigh_alpha, be.rayleigh_beta)
@@ -294,7 +295,7 @@ class _StepProblem(newton.Problem):
     def residual(self, x, k: int) -> float:
         """rhs = -grad Phi(x); returns |grad Phi|."""
         model, work, be, dt = self.model, self.work, self.be, self.dt
-        model.forces(x, work["f"])
+        self.forces(x, work["f"])
         g2 = _be_residual(x, self.xn, self.v, work["f"], model.mass_nd, model.inv_mass_nd, self.inv_dt2, self.a_dt,
                           dt, self.rhs)
         if k > 0 and (be.rayleigh_beta > 0.0 or model.dampers):   # at x = x_n (k = 0) their terms vanish

@@ -20,7 +20,9 @@ Its ``path`` says what it planned:
   Verlet: its per-triangle force kernel, then gather + update, both launched bound
   (engine.integrators.explicit.corner_stepper);
 - ``"generic"``: each energy's force kernels, then one update pass;
-- ``"implicit"``: backward Euler's Newton step (engine.integrators.implicit) with the stepper's solver.
+- ``"implicit"``: backward Euler's Newton step (engine.integrators.implicit) with the stepper's solver
+  (and, for springs [+ one hinge energy], the model's forces in one launch:
+  engine.integrators.explicit.cloth_forces).
 
 A small spring-only model under an explicit method may also take ``"many-steps"`` chunks (every
 step's energies in one launch, engine.integrators.explicit.many_steps) when a run samples the
@@ -40,7 +42,7 @@ from engine import diagnostics
 from engine.constants import MANY_STEPS_BELOW
 from engine.fields import WorkArrays
 from engine.integrators import loop
-from engine.integrators.explicit import CLOTH_METHODS, cloth_stepper, corner_stepper, many_steps, signature
+from engine.integrators.explicit import CLOTH_METHODS, cloth_forces, cloth_stepper, corner_stepper, many_steps, signature
 from engine.integrators.monitor import Monitor
 from engine.integrators.registry import EXPLICIT, get
 from engine.solvers import SolverError
@@ -49,11 +51,18 @@ from engine.solvers import SolverError
 @dataclass(frozen=True)
 class StepContext:
     """What an integrator is handed for a step: the model, the stepper's work arrays, whether the model
-    has velocity-dependent forces, and (implicit) the stepper's own linear solver."""
+    has velocity-dependent forces, (implicit) the stepper's own linear solver, and ``forces(x, f)``, the
+    model's forces as the stepper planned them (:meth:`engine.model.Model.forces`, or the same bits in
+    one launch: engine.integrators.explicit.cloth_forces)."""
     model: object
     work: WorkArrays
     dampers: bool
     solver: object = None
+    forces: object = None
+
+    def __post_init__(self):
+        if self.forces is None:
+            object.__setattr__(self, "forces", self.model.forces)
 
 
 @dataclass
@@ -108,10 +117,12 @@ class Stepper:
             self.path = "scene"
             self.context = None
             return
-        self.context = StepContext(self.model, self.work, self.dampers, self.solver)
         if self.implicit:
             self.path = "implicit"
+            self.context = StepContext(self.model, self.work, self.dampers, self.solver,
+                                       cloth_forces(self.model, work=self._fast_work))
             return
+        self.context = StepContext(self.model, self.work, self.dampers, self.solver)
         spring_only = signature(self.model) == ("springs",) and self.name in EXPLICIT
         if self._requested is True and not spring_only:
             raise ValueError(f"the many-steps kernel needs a spring-only model (exactly one spring energy, plus "

@@ -243,3 +243,28 @@ def test_damped_membranes_and_forward_euler_take_the_generic_path():
     from engine.integrators.explicit import ForwardEuler
     assert Stepper(_membrane_cloth(6, "baraff-witkin", damping=1.0), SymplecticEuler()).path == "generic"
     assert Stepper(_membrane_cloth(6, "baraff-witkin"), ForwardEuler()).path == "generic"
+
+
+@pytest.mark.parametrize("B,variant", [(1e-3, "notes"), (1e-3, "discrete-shells"), (0.0, "notes")])
+def test_one_launch_forces_are_bitwise_the_models_forces(B, variant):
+    """engine.integrators.explicit.cloth_forces (what an implicit stepper's Newton residual uses for
+    springs [+ one hinge energy]) gives Model.forces' bits: the weight added, pinned vertices 0,
+    for any number of blocks; an implicit stepper plans it, a membrane's keeps Model.forces."""
+    from engine.fields import vec3_ndarray
+    from engine.integrators import BackwardEuler
+    from engine.integrators.explicit import cloth_forces
+    model = cloth(16, B=B, variant=variant).model
+    x = model.make_state(model.X + start(model, seed=7)).x
+    ref, got = vec3_ndarray(model.n), vec3_ndarray(model.n)
+    model.forces(x, ref)
+    f_ref = ref.to_numpy()
+    assert not f_ref[model.pinned].any() and np.abs(f_ref).max() > 1.0   # not vacuous: pins and real forces
+    for nb in (1, 2, 5):
+        cloth_forces(model, nb)(x, got)
+        assert np.array_equal(got.to_numpy(), f_ref), nb
+    stepper = Stepper(model, BackwardEuler(solver="cholesky"))
+    assert stepper.context.forces is not model.forces
+    stepper.context.forces(x, got)
+    assert np.array_equal(got.to_numpy(), f_ref)
+    membrane = _membrane_cloth(8, "baraff-witkin")
+    assert Stepper(membrane, BackwardEuler(solver="cholesky")).context.forces == membrane.forces
