@@ -8,10 +8,10 @@ Stencils.  Most energies are sums over elements of k vertices each (springs: k =
 k = 4), W = sum_e W_e(x_e0, ..., x_e(k-1)), so the Hessian is a sum of k x k arrays of 3x3 blocks
 H_e,ab = d2W_e / dx_a dx_b.  An energy says so by setting ``stencil_size`` k and ``elements``
 (an (max(m, 1), k) i32 ndarray, the first ``n_elements`` rows valid) and by giving a ti.func
-``block(blocks, e, a, b)`` (a, b compile-time ints) that returns H_e,ab from the array its
-:meth:`hessian_blocks` returns, in whatever compact layout it stores.  That is all the sparse
-assembly (:mod:`engine.solvers.assembly`) needs.  ``products`` names the faster products an energy
-offers to the PCG solver (:mod:`engine.solvers`):
+``block(blocks, e, a, b)`` (a, b ints, known at compile time or only at run time) that returns
+H_e,ab from the array its :meth:`hessian_blocks` returns, in whatever compact layout it stores.
+That is all the sparse assembly (:mod:`engine.solvers.assembly`) needs.  ``products`` names the
+faster products an energy offers to the PCG solver (:mod:`engine.solvers`):
 
 ``"blocks"``       :meth:`add_block_product` (out += H dx from the stored blocks, computed once
                    per linear solve).
@@ -60,7 +60,7 @@ class Energy:
     stencil_size: int = 0       # k vertices per element; 0: no per-element block layout
     n_elements: int = 0         # m
     elements = None             # (max(m, 1), k) i32 ndarray of element vertices
-    block = None                # ti.func block(blocks, e, a: template, b: template) -> mat3 H_e,ab
+    block = None                # ti.func block(blocks, e, a, b) -> mat3 H_e,ab (slots a, b at compile or run time)
     products: frozenset = frozenset()  # of "blocks", "pair-gather", "rank-one", "element-blocks", "deformation-blocks"
     # How the explicit fast kernels can take its forces (engine.integrators.cloth_kernels): "pair-gather"
     # (spring_gather over force_args()), "slot-gather" (a per-element pass, then a per-vertex gather

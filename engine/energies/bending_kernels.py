@@ -41,8 +41,9 @@ def _hinge_terms(x: ti.template(), hinges: ti.template(), k: ti.template(), thet
 
 
 @ti.func
-def hinge_block(blocks: ti.template(), h, a: ti.template(), b: ti.template()) -> ti.math.mat3:
-    """Block (a, b) = d2W_h/dx_a dx_b of the layout of :meth:`BendingEnergy.hessian_blocks`."""
+def hinge_block(blocks: ti.template(), h, a, b) -> ti.math.mat3:
+    """Block (a, b) = d2W_h/dx_a dx_b of the layout of :meth:`BendingEnergy.hessian_blocks` (a, b:
+    compile-time or run-time slots)."""
     return blocks[h, 4 * a + b]
 
 

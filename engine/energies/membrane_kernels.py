@@ -29,8 +29,9 @@ def _triangle(x: ti.template(), tris: ti.template(), Dinv: ti.template(), area: 
 
 
 @ti.func
-def membrane_block(blocks: ti.template(), t, a: ti.template(), b: ti.template()) -> ti.math.mat3:
-    """Block (a, b) of triangle t in the layout of :meth:`MembraneEnergy.hessian_blocks`."""
+def membrane_block(blocks: ti.template(), t, a, b) -> ti.math.mat3:
+    """Block (a, b) of triangle t in the layout of :meth:`MembraneEnergy.hessian_blocks` (a, b:
+    compile-time or run-time slots)."""
     return blocks[t, 3 * a + b]
 
 

@@ -93,10 +93,11 @@ def spring_block(d: ti.math.vec3, inv_L: float, c_over_L: float, psd: ti.i32) ->
 
 
 @ti.func
-def spring_pair_block(blocks: ti.template(), e, a: ti.template(), b: ti.template()) -> ti.math.mat3:
-    """Block (a, b) of H_e = [[K, -K], [-K, K]] from the compact per-edge K = blocks[e] (S3)/(S4)."""
+def spring_pair_block(blocks: ti.template(), e, a, b) -> ti.math.mat3:
+    """Block (a, b) of H_e = [[K, -K], [-K, K]] from the compact per-edge K = blocks[e] (S3)/(S4)
+    (a, b: compile-time or run-time slots)."""
     K = blocks[e]
-    if ti.static(a != b):
+    if a != b:
         K = -K
     return K
 

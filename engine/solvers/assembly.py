@@ -244,11 +244,7 @@ def row_assembler(k: int, block):
                 e = c_elem[c]
                 code = c_code[c]
                 pos = c_pos[c]
-                K = ti.Matrix.zero(float, 3, 3)
-                for ab in ti.static(range(k * k)):
-                    if code == ab:
-                        K = block(blocks, e, ab // k, ab % k)
-                K = scale * K
+                K = scale * block(blocks, e, code // k, code % k)   # the slots at run time: no k^2-way branch
                 if pos < 0:
                     for r in ti.static(range(3)):
                         base = indptr[3 * i + r] - r

@@ -123,8 +123,8 @@ class RankOneFactors(NamedTuple):
 
 
 @ti.func
-def rank_one_block(w: ti.template(), e, a: ti.template(), b: ti.template()) -> ti.math.mat3:
-    """Block (a, b) of the rank-one element Hessian w_e w_e^T."""
+def rank_one_block(w: ti.template(), e, a, b) -> ti.math.mat3:
+    """Block (a, b) of the rank-one element Hessian w_e w_e^T (a, b: compile-time or run-time slots)."""
     return w[e, a].outer_product(w[e, b])
 
 
