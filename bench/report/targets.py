@@ -143,12 +143,19 @@ def _why_explicit(rows, side, step) -> list:
         peers = ", ".join(f"{p['impl']} {p['ns_per_vertex']:.1f}" for p in peers if p and p.get("ns_per_vertex"))
         why.append(f"Without bending the engine's step is {sp['ns_per_vertex']:.1f} ns/vertex"
                    + (f" (the peers' in the same run: {peers})." if peers else "."))
-    launch = {k: find(rows, config="t2-f64", group="launch-cost", impl=k) for k in ("engine",) + EXPLICIT_PEERS}
+    launch = {k: find(rows, config="t2-f64", group="launch-cost", impl=k)
+              for k in ("engine", "engine-bound", "engine-serial") + EXPLICIT_PEERS}
     if launch["engine"]:
         calls = ", ".join(f"{k} {r['per_step_s'] * 1e6:.1f} us" for k, r in launch.items() if r)
         why.append(f"A call of a one-item kernel with the step's arguments (bench/test_bench_launch.py, 64^2 arrays): "
                    f"{calls}. The engine's one-step-per-call rows pay its launch once per step; at 64^2 that is a "
                    f"large part of the whole step, and the 10-steps-per-call rows pay it once per 10 steps.")
+    if launch["engine-bound"] and launch["engine-serial"]:
+        b, s = launch["engine-bound"]["per_step_s"], launch["engine-serial"]["per_step_s"]
+        why.append(f"Of the bound launch the explicit step uses ({b * 1e6:.1f} us), {max(b - s, 0) * 1e6:.1f} us is "
+                   f"Taichi's parallel-loop hand-over (its CPU thread pool woken and waited for; the same bound launch "
+                   f"of a serialized loop takes {s * 1e6:.1f} us): a cost per launch that the engine's kernels cannot "
+                   f"shed while they use both cores.")
     f32 = find(rows, config="t2-f32", group="cloth-explicit-step", impl="engine", model="springs+bending", side=side)
     if f32:
         why.append(f"In f32 the same step is {f32['ns_per_vertex']:.1f} ns/vertex.")
