@@ -31,7 +31,7 @@ from engine.energies.base import stencil_triplets
 from engine.fields import int_array, int_array2, int_ndarray, scalar_array
 
 __all__ = ["assemble_mass", "assemble_energy", "element_assembler", "triplet_capacity", "CSRPattern", "init_rows",
-           "row_assembler", "assemble_rows"]
+           "row_assembler", "assemble_rows", "pair_assembler", "assemble_system"]
 
 
 @ti.kernel
@@ -210,18 +210,47 @@ class CSRPattern:
         return tuple(int_ndarray(arr) for arr in (c_ptr, e_idx, a_idx * k + b_idx, pos))
 
 
+@ti.func
+def _init_row(i, values: ti.template(), indptr: ti.template(), mass: ti.template(), inv_mass: ti.template(), a):
+    """Block row i of (P1): a m_i on the diagonal of a free vertex, 1 on a pinned one, 0 elsewhere."""
+    for idx in range(indptr[3 * i], indptr[3 * i + 3]):
+        values[idx] = 0.0
+    d = a * mass[i]
+    if inv_mass[i] == 0.0:
+        d = 1.0
+    for r in ti.static(range(3)):
+        values[indptr[3 * i + r]] = d
+
+
+@ti.func
+def _add_row(i, values: ti.template(), indptr: ti.template(), c_ptr: ti.template(), c_elem: ti.template(),
+             c_code: ti.template(), c_pos: ti.template(), blocks: ti.template(), scale, k: ti.template(),
+             block: ti.template()):
+    """Block row i += scale H_e,ab of every contribution to it of a k-vertex stencil energy (P1), in
+    the listed order; i's rows have one writer (no atomics)."""
+    for c in range(c_ptr[i], c_ptr[i + 1]):
+        e = c_elem[c]
+        code = c_code[c]
+        pos = c_pos[c]
+        K = scale * block(blocks, e, code // k, code % k)   # the slots at run time: no k^2-way branch
+        if pos < 0:
+            for r in ti.static(range(3)):
+                base = indptr[3 * i + r] - r
+                for s in ti.static(range(r, 3)):
+                    values[base + s] = values[base + s] + K[r, s]
+        else:
+            for r in ti.static(range(3)):
+                base = indptr[3 * i + r] + 3 - r + 3 * pos
+                for s in ti.static(range(3)):
+                    values[base + s] = values[base + s] + K[r, s]
+
+
 @ti.kernel
 def init_rows(values: scalar_array, indptr: ti.types.ndarray(dtype=ti.i32, ndim=1), mass: scalar_array,
               inv_mass: scalar_array, a: float):
     """values = a M on the diagonal of free vertices, 1 on pinned ones, 0 elsewhere (P1)."""
     for i in range(mass.shape[0]):
-        for idx in range(indptr[3 * i], indptr[3 * i + 3]):
-            values[idx] = 0.0
-        d = a * mass[i]
-        if inv_mass[i] == 0.0:
-            d = 1.0
-        for r in ti.static(range(3)):
-            values[indptr[3 * i + r]] = d
+        _init_row(i, values, indptr, mass, inv_mass, a)
 
 
 _ROW_ASSEMBLERS: dict = {}
@@ -240,21 +269,7 @@ def row_assembler(k: int, block):
     def assemble(values: scalar_array, indptr: ti.types.ndarray(dtype=ti.i32, ndim=1), c_ptr: int_array,
                  c_elem: int_array, c_code: int_array, c_pos: int_array, blocks: ti.types.ndarray(), scale: float):
         for i in range(c_ptr.shape[0] - 1):
-            for c in range(c_ptr[i], c_ptr[i + 1]):
-                e = c_elem[c]
-                code = c_code[c]
-                pos = c_pos[c]
-                K = scale * block(blocks, e, code // k, code % k)   # the slots at run time: no k^2-way branch
-                if pos < 0:
-                    for r in ti.static(range(3)):
-                        base = indptr[3 * i + r] - r
-                        for s in ti.static(range(r, 3)):
-                            values[base + s] = values[base + s] + K[r, s]   # one writer per row: no atomics
-                else:
-                    for r in ti.static(range(3)):
-                        base = indptr[3 * i + r] + 3 - r + 3 * pos
-                        for s in ti.static(range(3)):
-                            values[base + s] = values[base + s] + K[r, s]
+            _add_row(i, values, indptr, c_ptr, c_elem, c_code, c_pos, blocks, scale, k, block)
 
     _ROW_ASSEMBLERS[key] = assemble
     return assemble
@@ -268,3 +283,55 @@ def assemble_rows(pattern: CSRPattern, values, energy, blocks, scale: float) -> 
         block, data = _block_source(energy, blocks)
         row_assembler(energy.stencil_size, block)(values, pattern.indptr_nd, c_ptr, c_elem, c_code, c_pos, data,
                                                   float(scale))
+
+
+_PAIR_ASSEMBLERS: dict = {}
+
+
+def pair_assembler(k1: int, block1, k2: int, block2):
+    """The kernel writing all of A' = a M + s1 H_1 + s2 H_2 (P1) for two stencil energies in ONE
+    pass over the block rows: per row, :func:`init_rows`' values, then the first energy's
+    contributions, then the second's, so every entry is summed in the order of init_rows followed
+    by two :func:`assemble_rows` (the same bits) with one launch instead of three and the row's
+    values still in cache; generated once per (k1, block1, k2, block2)."""
+    key = (int(k1), block1, int(k2), block2)
+    kernel = _PAIR_ASSEMBLERS.get(key)
+    if kernel is not None:
+        return kernel
+
+    @ti.kernel
+    def assemble(values: scalar_array, indptr: ti.types.ndarray(dtype=ti.i32, ndim=1), mass: scalar_array,
+                 inv_mass: scalar_array, a: float,
+                 p1: int_array, e1: int_array, c1: int_array, q1: int_array, b1: ti.types.ndarray(), s1: float,
+                 p2: int_array, e2: int_array, c2: int_array, q2: int_array, b2: ti.types.ndarray(), s2: float):
+        for i in range(mass.shape[0]):
+            _init_row(i, values, indptr, mass, inv_mass, a)
+            _add_row(i, values, indptr, p1, e1, c1, q1, b1, s1, k1, block1)
+            _add_row(i, values, indptr, p2, e2, c2, q2, b2, s2, k2, block2)
+
+    _PAIR_ASSEMBLERS[key] = assemble
+    return assemble
+
+
+def assemble_system(pattern: CSRPattern, values, model, a: float, terms, once_each: bool = False) -> None:
+    """values = a M + sum of ``terms`` (P1): ``terms`` yields (scale, energy, blocks) as
+    engine.solvers.operator.element_terms does, one at a time. With ``once_each`` (the caller knows
+    each energy comes once: no extra term) and two energies with elements (a cloth's springs and
+    hinges), one :func:`pair_assembler` launch; otherwise :func:`init_rows` and one
+    :func:`assemble_rows` per term, each assembled before the next is asked for (an energy may reuse
+    its blocks buffer for its next term)."""
+    args = (values, pattern.indptr_nd, model.mass_nd, model.inv_mass_nd, float(a))
+    active = [e for e in model.energies if e.n_elements]
+    if once_each and len(active) == 2 and active[0] is not active[1]:
+        terms = list(terms)   # two energies, one term each: their buffers are distinct
+        if [t[1] for t in terms] == active:
+            parts = []
+            for scale, e, blocks in terms:
+                block, data = _block_source(e, blocks)
+                parts.append((e.stencil_size, block, pattern.contributions[id(e)], data, float(scale)))
+            (k1, bl1, con1, d1, s1), (k2, bl2, con2, d2, s2) = parts
+            pair_assembler(k1, bl1, k2, bl2)(*args, *con1, d1, s1, *con2, d2, s2)
+            return
+    init_rows(*args)
+    for scale, e, blocks in terms:
+        assemble_rows(pattern, values, e, blocks, scale)

@@ -9,8 +9,7 @@ import taichi as ti
 
 from engine.fields import float_dtype, vec3_ndarray, zero_vec3
 from engine.model import Model
-from engine.solvers.assembly import (CSRPattern, assemble_energy, assemble_mass, assemble_rows, init_rows,
-                                     triplet_capacity)
+from engine.solvers.assembly import CSRPattern, assemble_energy, assemble_mass, assemble_system, triplet_capacity
 from engine.solvers.operator import LinearSolver, LinearSolveInfo, apply_plan, hessian_plan, scaled_operator, element_terms
 from engine.solvers.pardiso import PARDISO_IPARMS, Pardiso, SymmetricUpper, pardiso_available
 
@@ -241,9 +240,8 @@ class PardisoSolver(DirectSolver):
         """Write the values of A' (P1) at x into the pattern's CSR values; returns them (numpy)."""
         pattern, A = entry["pattern"], entry["matrix"]
         values = A.data  # the kernels write the CSR values in place (a numpy array: no copy on the CPU)
-        init_rows(values, pattern.indptr_nd, model.mass_nd, model.inv_mass_nd, a_s)
-        for scale, e, blocks in element_terms(model, x, psd, extra, entry.setdefault("factors", {})):
-            assemble_rows(pattern, values, e, blocks, scale)
+        terms = element_terms(model, x, psd, extra, entry.setdefault("factors", {}))
+        assemble_system(pattern, values, model, a_s, terms, once_each=extra is None)
         ti.sync()
         return values
 

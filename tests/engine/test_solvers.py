@@ -250,6 +250,33 @@ def test_rank_one_factors_assemble_the_stored_blocks(psd):
         assert np.array_equal(fast, values)
 
 
+@needs_pardiso
+@pytest.mark.parametrize("psd", [True, False])
+def test_one_pass_assembly_is_bitwise_the_three_passes(psd, monkeypatch):
+    """A cloth's springs + hinges are assembled into PARDISO's CSR values in one launch
+    (assembly.pair_assembler: per block row, the mass diagonal, then the springs', then the
+    hinges' contributions): the same bits as init_rows followed by one assemble_rows per energy;
+    with an extra term (Rayleigh beta: each energy twice) the per-term passes are taken."""
+    from engine.solvers import assembly, operator
+    model, x = cloth(7)
+    x_nd = vec3_ndarray(model.n, x)
+    solver = make_solver("pardiso", tol=1e-12)
+    entry = solver._setup(model)
+    pattern, values = entry["pattern"], entry["matrix"].data
+    pairs = []
+    pair = assembly.pair_assembler
+    monkeypatch.setattr(assembly, "pair_assembler", lambda *a: pairs.append(a) or pair(*a))
+    for extra, fused in ((None, True), ((0.3, vec3_ndarray(model.n, model.X)), False)):
+        pairs.clear()
+        one = solver.assemble_values(model, entry, x_nd, 2.5e3, psd, extra).copy()
+        assert bool(pairs) == fused
+        values[:] = np.nan
+        assembly.init_rows(values, pattern.indptr_nd, model.mass_nd, model.inv_mass_nd, 2.5e3)
+        for scale, e, blocks in operator.element_terms(model, x_nd, psd, extra, {}):
+            assembly.assemble_rows(pattern, values, e, blocks, scale)
+        assert np.array_equal(one, values) and np.abs(values).max() > 0
+
+
 def test_cholesky_refactorizes_with_cached_pattern():
     """The pattern is analysed once per model; new values are factorised on every solve."""
     model, x = cloth(5)
