@@ -7,7 +7,7 @@ import time
 import numpy as np
 import taichi as ti
 
-from engine.fields import float_dtype, vec3_ndarray, zero_vec3
+from engine.fields import scalar_array, vec3_array, vec3_ndarray, zero_vec3
 from engine.model import Model
 from engine.solvers.assembly import CSRPattern, assemble_energy, assemble_mass, assemble_system, triplet_capacity
 from engine.solvers.operator import LinearSolver, LinearSolveInfo, apply_plan, hessian_plan, scaled_operator, element_terms
@@ -31,6 +31,27 @@ def norm(a: np.ndarray) -> float:
 
 
 STALL = 0.5   # a refinement step must at least halve the residual, or refinement has stalled
+
+f64_flat = ti.types.ndarray(dtype=ti.f64, ndim=1)
+
+
+@ti.kernel
+def _read_rhs(b: vec3_array, inv_mass: scalar_array, c: ti.f64, rhs: f64_flat):
+    """rhs (numpy f64, 3n) = b / c on free vertices, 0 on pinned ones: numpy's
+    ``b.to_numpy().astype(f64).reshape(-1) / c`` with pinned rows zeroed, without a new array."""
+    for i in range(b.shape[0]):
+        for d in ti.static(range(3)):
+            r = ti.cast(0.0, ti.f64)
+            if inv_mass[i] > 0.0:
+                r = ti.cast(b[i][d], ti.f64) / c
+            rhs[3 * i + d] = r
+
+
+@ti.kernel
+def _write_solution(sol: f64_flat, y: vec3_array):
+    """y = sol (numpy f64, 3n) in the runtime's precision: ``y.from_numpy(sol.reshape(-1, 3))``."""
+    for i in range(y.shape[0]):
+        y[i] = ti.math.vec3(sol[3 * i], sol[3 * i + 1], sol[3 * i + 2])
 
 
 class DirectSolver(LinearSolver):
@@ -93,15 +114,17 @@ class DirectSolver(LinearSolver):
             zero_vec3(y)
             return self._info(1, math.inf, f"{self.name} factorization failed (matrix not positive definite)")
         free = entry["free_dofs"]
-        rhs = np.asarray(b.to_numpy(), dtype=np.float64).reshape(-1) / c
-        rhs[~free] = 0.0
+        rhs = entry.get("rhs")
+        if rhs is None:
+            rhs = entry["rhs"] = np.empty(3 * model.n, dtype=np.float64)
+        _read_rhs(b, model.inv_mass_nd, float(c), rhs)
         bnorm = norm(rhs)
         if bnorm == 0.0:
             zero_vec3(y)
             return self._info(0, 0.0)
         sol = np.asarray(self._backsolve(entry, rhs), dtype=np.float64).reshape(-1)
         if self.product_reads_y:
-            y.from_numpy(sol.reshape(-1, 3).astype(float_dtype()))
+            _write_solution(sol, y)
         residual_of = self._residual(model, entry, x, a / c, psd, scaled_operator(extra, c), rhs)
         it, previous = 1, math.inf
         while True:
@@ -121,10 +144,10 @@ class DirectSolver(LinearSolver):
                 sol = sol + np.asarray(self._backsolve(entry, res), dtype=np.float64).reshape(-1)  # refinement
                 previous = residual
             if self.product_reads_y:
-                y.from_numpy(sol.reshape(-1, 3).astype(float_dtype()))
+                _write_solution(sol, y)
             it += 1
         if not self.product_reads_y:
-            y.from_numpy(sol.reshape(-1, 3).astype(float_dtype()))
+            _write_solution(sol, y)
         self.last_timings["solve"] = time.perf_counter() - t1
         return self._info(it, residual)
 
