@@ -18,9 +18,9 @@ unless j is the loop index, so the block kernels write ``a[j] = a[j] + ...``.
 import taichi as ti
 
 from engine.energies.hinge import hinge_forces, hinge_frame
+from engine.energies.masses import finish_force
 from engine.energies.springs import spring_force
 from engine.fields import int_array, scalar_array, vec3_array
-from engine.energies.masses import finish_force
 from engine.integrators.kernels import ACCEL_KICK, KICK_DRIFT, STEP, SYMPLECTIC_EULER, VELOCITY_VERLET, vertex_update
 from engine.tickets import BLOCK_SLOTS, SYNC_DONE, SYNC_STOP, SYNC_TICKET, start, wait_for_phase
 

@@ -158,6 +158,8 @@ class Stepper:
             self.fast.step(state, dt)
             state.t += dt
             return
+        if self.implicit:
+            self._check_plan()   # its forces plan copies c/L (engine.integrators.explicit.cloth_forces)
         info = self.integrator.advance(self.context, state, dt)
         if info is not None:
             self.last_info = info

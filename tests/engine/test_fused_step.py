@@ -142,6 +142,25 @@ def test_new_spring_coefficients_reach_the_fused_step():
     assert np.array_equal(xa, xb) and np.array_equal(va, vb)
 
 
+def test_new_spring_coefficients_reach_an_implicit_steppers_forces():
+    """An implicit stepper's one-launch forces copy c/L too: after set_coefficients its next advance
+    plans again and steps as a new stepper does, bit for bit."""
+    from engine.integrators import BackwardEuler
+    c = cloth(10, B=1e-3)
+    model = c.model
+    v0 = start(model, seed=9)
+    stepper = Stepper(model, BackwardEuler(solver="cholesky", tol=1e-10))
+    first = stepper.context.forces
+    stepper.advance(model.make_state(None, v0), 1e-2)
+    c.springs.set_coefficients(2.0 * c.springs.c_np)
+    st = model.make_state(None, v0)
+    stepper.advance(st, 1e-2)
+    assert stepper.context.forces is not first
+    ref = model.make_state(None, v0)
+    Stepper(model, BackwardEuler(solver="cholesky", tol=1e-10)).advance(ref, 1e-2)
+    assert np.array_equal(st.numpy().x, ref.numpy().x) and np.array_equal(st.numpy().v, ref.numpy().v)
+
+
 def test_repeated_edges_and_an_unordered_incidence():
     """Two springs between the same vertices: when both ends list them in the same order the block
     sweep sums them in that order (fused = generic); when the ends list them in opposite orders
