@@ -124,18 +124,27 @@ def test_direct_launch_is_taichis_launch(monkeypatch, scene, method):
     assert np.array_equal(xa, xb) and np.array_equal(va, vb)
 
 
-def test_new_spring_coefficients_reach_the_fused_step():
-    """The plan copies c/L; after SpringEnergy.set_coefficients a Stepper plans again."""
+@pytest.mark.parametrize("how", ["step", "advance"])
+def test_new_spring_coefficients_reach_the_fused_step(how):
+    """The plan copies c/L; after SpringEnergy.set_coefficients a Stepper plans again, whether it is
+    driven by step() or step by step by advance()."""
     c = cloth(10, B=1e-3)
     model = c.model
     v0 = start(model, seed=9)
     dt = 0.25 * stable_dt_estimate(model)
     stepper = Stepper(model, SymplecticEuler(True))
     first = stepper.fast
-    stepper.step(model.make_state(None, v0), dt, 5)   # the plan for the first c
+
+    def take(st, n):
+        if how == "step":
+            stepper.step(st, dt, n)
+        else:   # symplectic Euler's begin prepares nothing: advance alone, as a caller stepping by hand
+            for _ in range(n):
+                stepper.advance(st, dt)
+    take(model.make_state(None, v0), 5)   # the plan for the first c
     c.springs.set_coefficients(2.0 * c.springs.c_np)
     st = model.make_state(None, v0)
-    stepper.step(st, dt, 30)
+    take(st, 30)
     assert stepper.fast is not first
     xa, va = st.numpy().x, st.numpy().v
     xb, vb, _ = run(model, v0, dt, 30, "symplectic-euler", False)
