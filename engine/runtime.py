@@ -12,6 +12,10 @@ variable):
 ``ELASTIC_ARCH``      cpu | cuda | vulkan (default: ``TI_ARCH`` if set, else cpu)
 ``ELASTIC_THREADS``   CPU threads (default 2)
 ``ELASTIC_FP``        64 | 32 (default 64)
+``ELASTIC_PIN``       auto | off (default auto): on the CPU, bind each of Taichi's pool threads to
+                      its own CPU (engine.pinning: left free, the scheduler often put both on one
+                      CPU, and a parallel loop then ran on one thread); auto does it when there
+                      are at least as many usable CPUs as threads, off never
 ``ELASTIC_CACHE_DIR`` kernel cache directory (default ``<project>/.ti_cache``); one that cannot
                       be created or written is not used (one warning line; kernels then
                       compile in every process)
@@ -29,6 +33,7 @@ from __future__ import annotations
 
 import atexit
 import contextlib
+import dataclasses
 import io
 import os
 import sys
@@ -65,9 +70,12 @@ prepare_environment()
 
 import taichi as ti  # noqa: E402
 
+from engine import pinning  # noqa: E402
+
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 ARCHES = ("cpu", "cuda", "vulkan")
 MAX_THREADS = 256
+PIN_CHOICES = ("auto", "off")
 @dataclass(frozen=True)
 class RuntimeInfo:
     """What was asked (arch, threads, fp, cache_dir) and, read back from Taichi once it runs,
@@ -78,21 +86,27 @@ class RuntimeInfo:
     threads: int
     fp: int
     cache_dir: str
+    pin: str = "auto"
     backend: str = field(default="", compare=False)
     precision: str = field(default="", compare=False)
     cpu_threads: int | None = field(default=None, compare=False)
     offline_cache: bool = field(default=True, compare=False)
+    pinned: tuple | None = field(default=None, compare=False)   # the pool threads' CPUs, or None
+    unpinned_why: str = field(default="", compare=False)
 
     def describe(self) -> str:
         """One line: 'cpu (x64), f64, 2 threads, kernel cache /path' as Taichi reports it."""
         where = self.arch if self.backend in ("", self.arch) else f"{self.arch} ({self.backend})"
         threads = f"{self.cpu_threads} CPU threads" if self.cpu_threads else "GPU"
+        if self.pinned:
+            threads += f" on CPUs {', '.join(map(str, self.pinned))}"
         cache = f"kernel cache {self.cache_dir}" if self.offline_cache else "no kernel cache"
         return f"{where}, {self.precision or f'f{self.fp}'}, {threads}, {cache}"
 
     def as_dict(self) -> dict:
         return dict(arch=self.arch, backend=self.backend, precision=self.precision,
-                    threads=self.cpu_threads, offline_cache=self.cache_dir if self.offline_cache else None)
+                    threads=self.cpu_threads, offline_cache=self.cache_dir if self.offline_cache else None,
+                    pinned=list(self.pinned) if self.pinned else None)
 
 
 _current: RuntimeInfo | None = None
@@ -161,8 +175,12 @@ def init(arch: str | None = None, threads: int | None = None, fp: int | None = N
         raise RuntimeConfigError(f"TI_LOG_LEVEL must be one of {', '.join(LOG_LEVELS)} (got {log_level!r})")
     cache_text, cache_from = _pick(cache_dir, "cache_dir", ("ELASTIC_CACHE_DIR",), str(PROJECT_ROOT / ".ti_cache"))
     cache = str(Path(cache_text).resolve())
+    pin_text, pin_from = _pick(None, "", ("ELASTIC_PIN",), "auto")
+    pin = pin_text.lower()
+    if pin not in PIN_CHOICES:
+        raise RuntimeConfigError(f"{pin_from} must be one of {', '.join(PIN_CHOICES)} (got {pin_text!r})")
 
-    wanted = RuntimeInfo(arch, threads, fp, cache)
+    wanted = RuntimeInfo(arch, threads, fp, cache, pin)
     if _current is not None:
         if _current != wanted:
             raise RuntimeConfigError(
@@ -192,6 +210,7 @@ def init(arch: str | None = None, threads: int | None = None, fp: int | None = N
         kwargs["cpu_max_num_threads"] = threads
     banner = io.StringIO()
     ti_arch_env = os.environ.pop("TI_ARCH", None)  # Taichi lets TI_ARCH override the arch argument
+    before = pinning.thread_ids()   # Taichi's pool threads are among those that appear now
     try:
         with contextlib.redirect_stdout(banner):  # ti.init prints "[Taichi] Starting on arch=..."
             ti.init(**kwargs)
@@ -204,6 +223,9 @@ def init(arch: str | None = None, threads: int | None = None, fp: int | None = N
         if ti_arch_env is not None:
             os.environ["TI_ARCH"] = ti_arch_env
     _current = _read_back(wanted, problem is None)
+    if _current.cpu_threads:
+        pinned, why = pinning.pin_pool(before, _current.cpu_threads) if pin == "auto" else (None, "ELASTIC_PIN=off")
+        _current = dataclasses.replace(_current, pinned=pinned, unpinned_why=why)
     # Taichi writes its offline kernel cache when the program is finalised; a script that just
     # exits never finalises it, so every process would compile every kernel again.
     atexit.register(_finalise)
@@ -221,7 +243,7 @@ def _read_back(wanted: RuntimeInfo, cache_on: bool) -> RuntimeInfo:
     precision = {"f64": "f64", "f32": "f32", "float64": "f64", "float32": "f32"}.get(
         str(cfg.default_fp).split(".")[-1], str(cfg.default_fp))
     is_cpu = backend in ("x64", "arm64")
-    return RuntimeInfo(wanted.arch, wanted.threads, 64 if precision == "f64" else 32, wanted.cache_dir,
+    return RuntimeInfo(wanted.arch, wanted.threads, 64 if precision == "f64" else 32, wanted.cache_dir, wanted.pin,
                        backend=backend, precision=precision,
                        cpu_threads=int(cfg.cpu_max_num_threads) if is_cpu else None,
                        offline_cache=bool(cfg.offline_cache) and cache_on)

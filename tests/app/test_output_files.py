@@ -177,7 +177,7 @@ def test_results_json_carries_the_runs_metadata_and_a_complete_flag(tmp_path, mo
     assert doc["parameters"]["rod-waves"]["E"] == 2.0 and doc["stepping"]["integrator"] == "default"
     info = runtime.current()
     assert doc["runtime"] == dict(arch="cpu", backend=info.backend, precision="f64", threads=info.cpu_threads,
-                                  offline_cache=info.cache_dir)
+                                  offline_cache=info.cache_dir, pinned=list(info.pinned) if info.pinned else None)
     assert doc["version"] and doc["started"] <= doc["finished"]
     assert doc["passed"] == len(doc["experiments"]) > 0 and doc["failed"] == 0
     assert all(r["lesson"] == "rod-waves" and r["stage"] == 1 for r in doc["experiments"])

@@ -25,6 +25,7 @@ def run_py(args, env_changes, cwd, drop=()):
     ("ELASTIC_THREADS", "0", "ELASTIC_THREADS must be an integer in 1..256 (got 0)"),
     ("ELASTIC_ARCH", "tpu", "ELASTIC_ARCH must be one of cpu, cuda, vulkan (got 'tpu')"),
     ("ELASTIC_FP", "16", "ELASTIC_FP must be 32 or 64 (got 16)"),
+    ("ELASTIC_PIN", "yes", "ELASTIC_PIN must be one of auto, off (got 'yes')"),
     ("TI_LOG_LEVEL", "banana", "TI_LOG_LEVEL must be one of trace, debug, info, warn, error, critical, off "
                                "(got 'banana')"),
 ])
@@ -90,4 +91,5 @@ def test_the_runtime_is_read_back_from_taichi():
     assert info.precision == "f64" and str(cfg.default_fp) == "f64"
     assert info.cpu_threads == cfg.cpu_max_num_threads == 2
     assert info.backend in ("x64", "arm64") and info.arch == "cpu"
-    assert info.describe() == f"cpu ({info.backend}), f64, 2 CPU threads, kernel cache {info.cache_dir}"
+    on = f" on CPUs {', '.join(map(str, info.pinned))}" if info.pinned else ""
+    assert info.describe() == f"cpu ({info.backend}), f64, 2 CPU threads{on}, kernel cache {info.cache_dir}"
