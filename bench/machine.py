@@ -85,4 +85,6 @@ def machine_info() -> dict:
         versions={p: _version(p) for p in ("taichi", "numpy", "scipy", "pytest-benchmark", "matplotlib")},
         commit=_git_commit(),
         load_average=load_average(),
+        # what every configuration's process does with Taichi's CPU pool threads (engine.pinning)
+        elastic_pin=(os.environ.get("ELASTIC_PIN") or "auto").strip().lower(),
     )

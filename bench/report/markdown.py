@@ -53,7 +53,9 @@ def markdown(doc: dict, image_prefix: str) -> str:
         ("memory", f"{(m.get('memory_bytes') or 0) / 2 ** 30:.0f} GiB"), ("system", m.get("system", "?")),
         ("load average at start / end", f"{m.get('load_average')} / {doc.get('load_average_end')}"),
         ("Python", m.get("python")), ("versions", ", ".join(f"{k} {v}" for k, v in m.get("versions", {}).items())),
-        ("commit", m.get("commit") or "?")])
+        ("commit", m.get("commit") or "?")]
+        + ([("Taichi's CPU pool threads", "bound one per CPU where the CPUs suffice (ELASTIC_PIN=auto)" if m["elastic_pin"] == "auto"
+             else f"unbound (ELASTIC_PIN={m['elastic_pin']})")] if m.get("elastic_pin") else []))
 
     # targets
     L += ["## Targets (measured and reported, never asserted)", ""]
