@@ -19,7 +19,10 @@ CPUs this process may use, in order. The launching (Python) thread stays free.
 
 Nothing changes in what a kernel computes: only where its threads run. Pinning is skipped (and
 the reason kept) on a system without ``/proc/self/task`` or ``sched_setaffinity``, with one
-thread, with more threads than usable CPUs, or when the pool cannot be told apart.
+thread, when the threads are not as many as the CPUs this process may use (more threads: some
+would share a CPU anyway; fewer: every process of the kind would be bound to the same first CPUs
+while the others stay idle, e.g. the workers grading a class), or when the pool cannot be told
+apart.
 """
 
 import os
@@ -89,8 +92,10 @@ def pin_pool(before: set[int] | None, threads: int) -> tuple[tuple[int, ...] | N
     if before is None or not hasattr(os, "sched_setaffinity"):
         return None, "this system does not let a process bind its threads to CPUs"
     cpus = sorted(os.sched_getaffinity(0))
-    if threads > len(cpus):
-        return None, f"{threads} threads on {len(cpus)} usable CPUs"
+    if threads != len(cpus):
+        # with more CPUs than threads, other processes of the same kind (grading workers, test
+        # workers) would be bound to the same first CPUs while the rest stay idle
+        return None, f"{threads} threads on {len(cpus)} usable CPUs (bound only when they are as many)"
     workers = pool_threads(before, threads)
     if workers is None:
         return None, "Taichi's pool threads could not be told apart"

@@ -14,8 +14,8 @@ variable):
 ``ELASTIC_FP``        64 | 32 (default 64)
 ``ELASTIC_PIN``       auto | off (default auto): on the CPU, bind each of Taichi's pool threads to
                       its own CPU (engine.pinning: left free, the scheduler often put both on one
-                      CPU, and a parallel loop then ran on one thread); auto does it when there
-                      are at least as many usable CPUs as threads, off never
+                      CPU, and a parallel loop then ran on one thread); auto does it when the
+                      threads are as many as the CPUs this process may use, off never
 ``ELASTIC_CACHE_DIR`` kernel cache directory (default ``<project>/.ti_cache``); one that cannot
                       be created or written is not used (one warning line; kernels then
                       compile in every process)

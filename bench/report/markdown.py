@@ -54,7 +54,7 @@ def markdown(doc: dict, image_prefix: str) -> str:
         ("load average at start / end", f"{m.get('load_average')} / {doc.get('load_average_end')}"),
         ("Python", m.get("python")), ("versions", ", ".join(f"{k} {v}" for k, v in m.get("versions", {}).items())),
         ("commit", m.get("commit") or "?")]
-        + ([("Taichi's CPU pool threads", "bound one per CPU where the CPUs suffice (ELASTIC_PIN=auto)" if m["elastic_pin"] == "auto"
+        + ([("Taichi's CPU pool threads", "bound one per CPU when as many as the usable CPUs (ELASTIC_PIN=auto)" if m["elastic_pin"] == "auto"
              else f"unbound (ELASTIC_PIN={m['elastic_pin']})")] if m.get("elastic_pin") else []))
 
     # targets

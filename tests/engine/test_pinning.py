@@ -71,8 +71,18 @@ def test_elastic_pin_off_leaves_every_thread_free():
 def test_more_threads_than_cpus_are_not_bound_and_say_why():
     n = len(os.sched_getaffinity(0))
     d = _run(ELASTIC_THREADS=str(n + 1))
-    assert d["pinned"] is None and d["why"] == f"{n + 1} threads on {n} usable CPUs"
+    assert d["pinned"] is None and d["why"] == f"{n + 1} threads on {n} usable CPUs (bound only when they are as many)"
     assert all(a == d["usable"] for a in d["affinity"].values())
+
+
+def test_fewer_threads_than_cpus_are_not_bound(monkeypatch):
+    """On a machine with more CPUs than threads, every process would bind its pool to the same first
+    CPUs (a class graded by several workers, tests on several workers): auto leaves them free."""
+    from engine import pinning
+    monkeypatch.setattr(pinning.os, "sched_getaffinity", lambda pid: {0, 1, 2, 3}, raising=False)
+    monkeypatch.setattr(pinning.os, "sched_setaffinity", lambda pid, cpus: pytest.fail("bound a thread"),
+                        raising=False)
+    assert pinning.pin_pool(set(), 2) == (None, "2 threads on 4 usable CPUs (bound only when they are as many)")
 
 
 def test_one_thread_is_not_bound():
