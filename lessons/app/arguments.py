@@ -146,7 +146,9 @@ def run_parser(lesson_ids: list[str], lesson=None) -> argparse.ArgumentParser:
                        "not be written), 2 bad input, 130 interrupted (SIGINT), 143 terminated (SIGTERM), 129 "
                        "hung up (SIGHUP), 141 output pipe closed. Environment: ELASTIC_ARCH, ELASTIC_THREADS, "
                        "ELASTIC_FP, ELASTIC_CACHE_DIR set the defaults of --arch/--threads/precision/cache; "
-                       "ELASTIC_PIN=off leaves Taichi's CPU threads unbound (default auto: one CPU each); TI_LOG_LEVEL Taichi's log level. Every option but --stage may be given once.")
+                       "ELASTIC_PIN=off leaves Taichi's CPU threads unbound (default auto: one CPU each when "
+                       "as many as the CPUs); TI_LOG_LEVEL Taichi's log level. Every option but --stage may be "
+                       "given once.")
     p.add_argument("lesson", metavar="LESSON", help="lesson id (" + ", ".join(lesson_ids) + ") or 'all'")
     p.add_argument("--stage", action="append", default=None, metavar="N|A-B|LIST",
                    help="run only these stages (1-based): a number (3), a range (2-4), a list (1,3,5) or "
