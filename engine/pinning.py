@@ -29,7 +29,8 @@ import os
 
 import taichi as ti
 
-CHUNK = 512          # Taichi 1.7 gives a CPU thread at least 512 consecutive iterations of a range-for
+from engine.tickets import BLOCK_SLOTS   # a range-for's iterations per CPU thread (Taichi 1.7: >= 512)
+
 BUSY_ITERATIONS = 40_000   # square roots per worker per calibration launch (~0.1-0.3 ms)
 ATTEMPTS = 30        # calibration launches at most
 WORKED_NS = 50_000   # CPU time that marks a thread as having run a busy chunk
@@ -53,13 +54,13 @@ def _cpu_ns(tid: int) -> int | None:
 
 @ti.kernel
 def _busy(n: ti.i32, out: ti.types.ndarray(dtype=ti.f64, ndim=1)):
-    """One busy chunk per worker: iteration CHUNK*k of the loop does n dependent square roots."""
-    for it in range(out.shape[0] * CHUNK):
-        if it % CHUNK == 0:
+    """One busy chunk per worker: iteration BLOCK_SLOTS*k of the loop does n dependent square roots."""
+    for it in range(out.shape[0] * BLOCK_SLOTS):
+        if it % BLOCK_SLOTS == 0:
             s = ti.cast(it, ti.f64)
             for _ in range(n):
                 s = ti.sqrt(s + 1.0)
-            out[it // CHUNK] = s
+            out[it // BLOCK_SLOTS] = s
 
 
 def pool_threads(before: set[int], threads: int) -> list[int] | None:
@@ -109,4 +110,4 @@ def pin_pool(before: set[int] | None, threads: int) -> tuple[tuple[int, ...] | N
             except OSError:
                 pass
         return None, f"binding a thread failed ({exc.strerror or exc})"
-    return tuple(cpus[:threads]), ""
+    return tuple(cpus), ""

@@ -1,7 +1,7 @@
 """Taichi's CPU pool threads bound one per CPU (engine.pinning, ELASTIC_PIN): the threads bound are
 the ones that run a parallel loop (not Taichi's other threads, not the launching thread), each to
-a CPU of its own; ELASTIC_PIN=off and more threads than CPUs leave every thread free, with the
-reason. Each case runs in a fresh process (the pool is made when Taichi starts)."""
+a CPU of its own; ELASTIC_PIN=off and threads not as many as the CPUs leave every thread free,
+with the reason. Each case runs in a fresh process (the pool is made when Taichi starts)."""
 import json
 import os
 import subprocess
