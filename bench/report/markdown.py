@@ -26,6 +26,15 @@ def _sides(rows, **kw):
     return sorted({r["side"] for r in rows if r.get("side") and all(r.get(k) == v for k, v in kw.items())})
 
 
+def _pin_row(pin) -> list:
+    """The machine table's row on Taichi's CPU pool threads (bench.machine: ELASTIC_PIN), if recorded."""
+    if not pin:
+        return []
+    said = ("bound one per CPU when as many as the usable CPUs (ELASTIC_PIN=auto)" if pin == "auto"
+            else f"unbound (ELASTIC_PIN={pin})")
+    return [("Taichi's CPU pool threads", said)]
+
+
 def markdown(doc: dict, image_prefix: str) -> str:
     rows = doc["rows"]
     m = doc.get("machine", {})
@@ -53,9 +62,7 @@ def markdown(doc: dict, image_prefix: str) -> str:
         ("memory", f"{(m.get('memory_bytes') or 0) / 2 ** 30:.0f} GiB"), ("system", m.get("system", "?")),
         ("load average at start / end", f"{m.get('load_average')} / {doc.get('load_average_end')}"),
         ("Python", m.get("python")), ("versions", ", ".join(f"{k} {v}" for k, v in m.get("versions", {}).items())),
-        ("commit", m.get("commit") or "?")]
-        + ([("Taichi's CPU pool threads", "bound one per CPU when as many as the usable CPUs (ELASTIC_PIN=auto)" if m["elastic_pin"] == "auto"
-             else f"unbound (ELASTIC_PIN={m['elastic_pin']})")] if m.get("elastic_pin") else []))
+        ("commit", m.get("commit") or "?")] + _pin_row(m.get("elastic_pin")))
 
     # targets
     L += ["## Targets (measured and reported, never asserted)", ""]
