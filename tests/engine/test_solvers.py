@@ -197,6 +197,50 @@ def test_direct_solver_reports_indefinite_matrix(name):
 
 
 @needs_pardiso
+@pytest.mark.parametrize("precision", ["mixed", "double"])
+def test_pardiso_reports_indefinite_matrix_in_each_precision(precision):
+    """The engine's PARDISO solver, f32-then-f64 and f64 only, reports the crumpled network's
+    indefinite system instead of solving it: its factorisation is the classic one, which reports a
+    non-positive pivot (the two-level one, TWO_LEVEL_IPARM, does not: see the next test)."""
+    model, x = spring_network(3)
+    x_nd = vec3_ndarray(model.n, x)
+    b = vec3_ndarray(model.n, np.ones((model.n, 3)))
+    solver = solvers.PardisoSolver(1e-8, precision=precision)
+    info = solver.solve(model, x_nd, b, vec3_ndarray(model.n), 0.0, psd=False)
+    assert not info.converged and "not positive definite" in info.message, info
+
+
+@needs_pardiso
+def test_two_level_pardiso_is_for_positive_definite_matrices_only():
+    """Why the engine keeps PARDISO's classic factorisation and only the benchmark's library rows use the
+    two-level one: on a positive definite chain both solve to round-off, in f64 and f32; with one
+    negative diagonal entry the classic one returns error -4 (factorize -> False) in both precisions,
+    while the two-level one in f64 reports success."""
+    import scipy.sparse
+    from engine.solvers.pardiso import Pardiso
+    n = 600
+    A = scipy.sparse.diags([np.full(n - 1, -1.0), np.full(n, 4.0), np.full(n - 1, -1.0)], [-1, 0, 1]).tolil()
+    b = np.random.default_rng(2).standard_normal(n)
+    for indefinite in (False, True):
+        if indefinite:
+            A[n // 2, n // 2] = -50.0
+        U = scipy.sparse.triu(A.tocsr()).tocsr()
+        U.sort_indices()
+        for single in (False, True):
+            for two_level in (False, True):
+                S = Pardiso(U.indptr, U.indices, 2, single=single, two_level=two_level)
+                ok = S.factorize(U.data)
+                if not indefinite:
+                    y = S.solve(b)
+                    res = np.linalg.norm(A.tocsr() @ y - b) / np.linalg.norm(b)
+                    assert ok and res < (1e-5 if single else 1e-13), (single, two_level, res)
+                elif not two_level:
+                    assert not ok, ("classic", single)
+                elif not single:
+                    assert ok, "the two-level f64 factorisation now reports the indefinite matrix"
+
+
+@needs_pardiso
 def test_csr_pattern_holds_the_upper_triangle_and_is_reproducible():
     """The fixed CSR pattern (engine.solvers.assembly (P1)) holds every nonzero of the upper triangle of
     the dense filtered matrix (rows sorted, no duplicates); its values are that matrix exactly
