@@ -12,9 +12,7 @@ matrix built), as the engine checks its own with a matrix-free product:
                     near-null-space modes), rebuilt every step (the matrix changes), as the
                     preconditioner of CG to ``tol``;
 ``pardiso``         MKL PARDISO with the engine's settings (engine.solvers.PARDISO_IPARMS: SPD,
-                    METIS nested dissection, no refinement inside, the same thread count) and the
-                    two-level factorisation (TWO_LEVEL_IPARM: faster in f64; the engine keeps the
-                    classic one, which reports a matrix that is not positive definite), called
+                    METIS nested dissection, no refinement inside, the same thread count), called
                     through its C entry point with the index arrays made once, as the engine calls
                     it (engine.solvers.pardiso.Pardiso; pypardiso's own call rebuilds them at every
                     call): the symbolic analysis once, outside the clock, the numeric factorisation
@@ -118,7 +116,7 @@ class SparsePeer:
         if self.name == "pardiso":
             if self._pardiso is None:   # once per pattern (the matrix is built once): not repeated by a run
                 from engine.solvers.pardiso import Pardiso
-                self._pardiso = Pardiso(A.indptr, A.indices, _threads(), two_level=True)
+                self._pardiso = Pardiso(A.indptr, A.indices, _threads())
                 self._pardiso.analyse(A.data)
             t0 = time.perf_counter()
             if not self._pardiso.factorize(A.data):
@@ -174,19 +172,16 @@ def residual_of(A, b, y, upper: bool):
 
 
 def _pardiso_solver():
-    """A pypardiso solver with the engine's PARDISO settings, the library rows' two-level
-    factorisation and the engine's thread count."""
+    """A pypardiso solver with the engine's PARDISO settings and thread count."""
     from engine.solvers.pardiso import configured_solver
-    return configured_solver(_threads(), two_level=True)
+    return configured_solver(_threads())
 
 
 class FactorOnly:
     """PARDISO's numeric factorisation + solve of one fixed matrix (the cloth's system at (x, v)),
     the analysis done once at construction: the library's own cost per step, nothing around it.
     ``precision="mixed"``: f32 factorisation and back-substitution refined in f64 to ``tol`` (the
-    engine's technique, engine.solvers.PardisoSolver), through the same binding, with the engine's
-    classic factorisation; in f64 the two-level one (engine.solvers.pardiso.TWO_LEVEL_IPARM), the
-    library at its fastest."""
+    engine's technique, engine.solvers.PardisoSolver), through the same binding."""
 
     def __init__(self, cloth, x, v, dt, precision: str = "double", tol: float = 1e-5, refinements: int = 6):
         reason = available("pardiso")
@@ -196,7 +191,7 @@ class FactorOnly:
         self.A, self.b = cloth.implicit_system(x, v, dt, upper=True)
         self.mixed = precision == "mixed"
         self.tol, self.refinements = float(tol), int(refinements)
-        self.S = Pardiso(self.A.indptr, self.A.indices, _threads(), single=self.mixed, two_level=not self.mixed)
+        self.S = Pardiso(self.A.indptr, self.A.indices, _threads(), single=self.mixed)
         self.S.analyse(self.A.data)
         from engine.solvers.pardiso import SymmetricUpper
         self._product = SymmetricUpper(self.A, _threads())   # the engine's check, made once per matrix as there

@@ -24,17 +24,14 @@ import numpy as np
 # the default factorisation kernel, no matrix check, CSR (not transposed)
 PARDISO_IPARMS = ((1, 1), (2, 2), (8, 0), (10, 8), (13, 0), (24, 0), (27, 0), (12, 0))
 SINGLE_PRECISION_IPARM = 28   # iparm(28) = 1: the values, right-hand sides and solutions are f32
-# iparm(24) = 10: the improved two-level parallel factorisation instead of the classic one (0).
-# Measured on the cloth's matrices (2 threads, interleaved medians of the numeric factorisation): in
-# f64 it is faster, 21.0 against 26.3 ms at 64^2, 136 against 157 at 128^2, 923 against 1005 at
-# 256^2; in f32 it is not (14.4 / 14.6 ms, 84 / 85, 590 / 567) and its f32 back-substitution is
-# slower at 256^2 (34 against 28 ms). But it does not report a non-positive pivot: an indefinite
-# matrix (one diagonal entry -50 in a [-1, 4, -1] chain) factorises "successfully" with it in f64,
-# where the classic algorithm returns error -4. The engine's solver must see that (a Hessian that
-# is not projected can make A indefinite), so it keeps the classic algorithm; the benchmark's
-# library rows, which factorise matrices positive definite by construction, use this one
-# (two_level=True), so that the library is timed at its fastest.
-TWO_LEVEL_IPARM = (24, 10)
+# iparm(24) = 0, the classic parallel factorisation, for the engine and the benchmark's PARDISO rows
+# alike. The improved two-level one (iparm(24) = 10) factorises the cloth's f64 matrices 10-20%
+# faster (2 threads, interleaved medians: 21.0 against 26.3 ms at 64^2, 136 against 157 at 128^2,
+# 923 against 1005 at 256^2; in f32 no faster), but (a) it factorises an indefinite matrix without
+# an error, where the classic one returns -4 and the engine reports "not positive definite"
+# (tests/engine/test_solvers.py), and (b) its f64 back-substitution crashed the process
+# (segmentation fault, reproduced) once Numba's GNU OpenMP threads had run in it, as they do in the
+# benchmark's processes before the implicit rows.
 
 
 def quiet_openmp() -> None:
@@ -62,14 +59,13 @@ def pardiso_available() -> bool:
 _PARDISO_OK: bool | None = None
 
 
-def configured_solver(threads: int, two_level: bool = False):
-    """A pypardiso solver (SPD, mtype 2) with the engine's settings (PARDISO_IPARMS; ``two_level``:
-    with TWO_LEVEL_IPARM) and MKL limited to ``threads`` threads: what :class:`Pardiso` calls
-    through, and the benchmark's pypardiso.spsolve row."""
+def configured_solver(threads: int):
+    """A pypardiso solver (SPD, mtype 2) with the engine's settings (PARDISO_IPARMS) and MKL limited to
+    ``threads`` threads: what :class:`Pardiso` calls through, and the benchmark's pypardiso.spsolve row."""
     quiet_openmp()
     import pypardiso
     solver = pypardiso.PyPardisoSolver(mtype=2)
-    for i, v in PARDISO_IPARMS + ((TWO_LEVEL_IPARM,) if two_level else ()):
+    for i, v in PARDISO_IPARMS:
         solver.set_iparm(i, v)
     _limit_threads(solver.libmkl, threads)
     return solver
@@ -173,14 +169,11 @@ class Pardiso:
     ``analyse(values)`` (phase 11: ordering and symbolic factorisation, once per pattern),
     ``factorize(values) -> bool`` (phase 22; False when PARDISO reports a zero or negative pivot),
     ``solve(rhs) -> x`` (phase 33; f64 in and out whatever the precision).  ``single``: factorise
-    and back-substitute in f32 (the values are copied to f32 at each factorisation).  ``two_level``:
-    the two-level factorisation (TWO_LEVEL_IPARM; faster in f64, but it does not detect a matrix
-    that is not positive definite: for matrices positive definite by construction only).  Frees
+    and back-substitute in f32 (the values are copied to f32 at each factorisation).  Frees
     PARDISO's memory when dropped."""
 
-    def __init__(self, indptr: np.ndarray, indices: np.ndarray, threads: int = 2, single: bool = False,
-                 two_level: bool = False):
-        self._lib = configured_solver(threads, two_level)   # loads MKL, holds pt, iparm and the entry point
+    def __init__(self, indptr: np.ndarray, indices: np.ndarray, threads: int = 2, single: bool = False):
+        self._lib = configured_solver(threads)   # loads MKL, holds pt, iparm and the entry point
         self.single = bool(single)
         self._lib.set_iparm(SINGLE_PRECISION_IPARM, 1 if self.single else 0)
         self.dtype = np.float32 if self.single else np.float64

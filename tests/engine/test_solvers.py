@@ -201,7 +201,7 @@ def test_direct_solver_reports_indefinite_matrix(name):
 def test_pardiso_reports_indefinite_matrix_in_each_precision(precision):
     """The engine's PARDISO solver, f32-then-f64 and f64 only, reports the crumpled network's
     indefinite system instead of solving it: its factorisation is the classic one, which reports a
-    non-positive pivot (the two-level one, TWO_LEVEL_IPARM, does not: see the next test)."""
+    non-positive pivot (the two-level one does not: see the next test)."""
     model, x = spring_network(3)
     x_nd = vec3_ndarray(model.n, x)
     b = vec3_ndarray(model.n, np.ones((model.n, 3)))
@@ -211,11 +211,12 @@ def test_pardiso_reports_indefinite_matrix_in_each_precision(precision):
 
 
 @needs_pardiso
-def test_two_level_pardiso_is_for_positive_definite_matrices_only():
-    """Why the engine keeps PARDISO's classic factorisation and only the benchmark's library rows use the
-    two-level one: on a positive definite chain both solve to round-off, in f64 and f32; with one
-    negative diagonal entry the classic one returns error -4 (factorize -> False) in both precisions,
-    while the two-level one in f64 reports success."""
+def test_two_level_pardiso_misses_a_negative_pivot_that_the_classic_one_reports():
+    """One of the two reasons the engine keeps PARDISO's classic factorisation (iparm(24) = 0, see
+    engine/solvers/pardiso.py) though the two-level one (iparm(24) = 10) is faster in f64: on a positive
+    definite chain both solve to round-off, in f64 and f32; with one negative diagonal entry the
+    classic one returns error -4 (factorize -> False) in both precisions, while the two-level one in
+    f64 reports success."""
     import scipy.sparse
     from engine.solvers.pardiso import Pardiso
     n = 600
@@ -227,14 +228,16 @@ def test_two_level_pardiso_is_for_positive_definite_matrices_only():
         U = scipy.sparse.triu(A.tocsr()).tocsr()
         U.sort_indices()
         for single in (False, True):
-            for two_level in (False, True):
-                S = Pardiso(U.indptr, U.indices, 2, single=single, two_level=two_level)
+            for algorithm in (0, 10):
+                S = Pardiso(U.indptr, U.indices, 2, single=single)
+                if algorithm:
+                    S._lib.set_iparm(24, algorithm)   # before the analysis (the first factorisation)
                 ok = S.factorize(U.data)
                 if not indefinite:
                     y = S.solve(b)
                     res = np.linalg.norm(A.tocsr() @ y - b) / np.linalg.norm(b)
-                    assert ok and res < (1e-5 if single else 1e-13), (single, two_level, res)
-                elif not two_level:
+                    assert ok and res < (1e-5 if single else 1e-13), (single, algorithm, res)
+                elif algorithm == 0:
                     assert not ok, ("classic", single)
                 elif not single:
                     assert ok, "the two-level f64 factorisation now reports the indefinite matrix"
