@@ -25,7 +25,7 @@ import numpy as np
 PARDISO_IPARMS = ((1, 1), (2, 2), (8, 0), (10, 8), (13, 0), (24, 0), (27, 0), (12, 0))
 SINGLE_PRECISION_IPARM = 28   # iparm(28) = 1: the values, right-hand sides and solutions are f32
 # iparm(24) = 0, the classic parallel factorisation, for the engine and the benchmark's PARDISO rows
-# alike. The improved two-level one (iparm(24) = 10) factorises the cloth's f64 matrices 10-20%
+# alike. The improved two-level one (iparm(24) = 10) factorises the cloth's f64 matrices 8-20%
 # faster (2 threads, interleaved medians: 21.0 against 26.3 ms at 64^2, 136 against 157 at 128^2,
 # 923 against 1005 at 256^2; in f32 no faster), but (a) it factorises an indefinite matrix without
 # an error, where the classic one returns -4 and the engine reports "not positive definite"
