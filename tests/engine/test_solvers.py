@@ -184,30 +184,21 @@ def test_nonconvergent_pcg_is_reported():
         assert word in msg, msg
 
 
-@pytest.mark.parametrize("name", DIRECT)
+@pytest.mark.parametrize("name", DIRECT + [pytest.param("pardiso-double", marks=needs_pardiso)])
 def test_direct_solver_reports_indefinite_matrix(name):
-    """No mass term and the exact Hessian of a crumpled network: not positive definite."""
+    """No mass term and the exact Hessian of a crumpled network: not positive definite, reported by
+    each direct solver, PARDISO in both precisions (f32-then-f64 and f64 only): its factorisation is
+    the classic one, which reports a non-positive pivot (the two-level one does not: see
+    test_two_level_pardiso_misses_a_negative_pivot_that_the_classic_one_reports)."""
     model, x = spring_network(3)
     x_nd = vec3_ndarray(model.n, x)
     b = vec3_ndarray(model.n, np.ones((model.n, 3)))
-    info = make_solver(name).solve(model, x_nd, b, vec3_ndarray(model.n), 0.0, psd=False)
-    assert not info.converged and "factorization failed" in info.message
-    with pytest.raises(SolverError, match=name):
-        info.check()
-
-
-@needs_pardiso
-@pytest.mark.parametrize("precision", ["mixed", "double"])
-def test_pardiso_reports_indefinite_matrix_in_each_precision(precision):
-    """The engine's PARDISO solver, f32-then-f64 and f64 only, reports the crumpled network's
-    indefinite system instead of solving it: its factorisation is the classic one, which reports a
-    non-positive pivot (the two-level one does not: see the next test)."""
-    model, x = spring_network(3)
-    x_nd = vec3_ndarray(model.n, x)
-    b = vec3_ndarray(model.n, np.ones((model.n, 3)))
-    solver = solvers.PardisoSolver(1e-8, precision=precision)
+    solver = solvers.PardisoSolver(1e-8, precision="double") if name == "pardiso-double" else make_solver(name)
     info = solver.solve(model, x_nd, b, vec3_ndarray(model.n), 0.0, psd=False)
-    assert not info.converged and "not positive definite" in info.message, info
+    assert not info.converged and "factorization failed" in info.message, info
+    assert "not positive definite" in info.message, info
+    with pytest.raises(SolverError, match=solver.name):
+        info.check()
 
 
 @needs_pardiso
@@ -216,7 +207,7 @@ def test_two_level_pardiso_misses_a_negative_pivot_that_the_classic_one_reports(
     engine/solvers/pardiso.py) though the two-level one (iparm(24) = 10) is faster in f64: on a positive
     definite chain both solve to round-off, in f64 and f32; with one negative diagonal entry the
     classic one returns error -4 (factorize -> False) in both precisions, while the two-level one in
-    f64 reports success."""
+    f64 reports success (the engine's solver, classic, reports it: test_direct_solver_reports_indefinite_matrix)."""
     import scipy.sparse
     from engine.solvers.pardiso import Pardiso
     n = 600
@@ -225,7 +216,8 @@ def test_two_level_pardiso_misses_a_negative_pivot_that_the_classic_one_reports(
     for indefinite in (False, True):
         if indefinite:
             A[n // 2, n // 2] = -50.0
-        U = scipy.sparse.triu(A.tocsr()).tocsr()
+        full = A.tocsr()
+        U = scipy.sparse.triu(full).tocsr()
         U.sort_indices()
         for single in (False, True):
             for algorithm in (0, 10):
@@ -235,7 +227,7 @@ def test_two_level_pardiso_misses_a_negative_pivot_that_the_classic_one_reports(
                 ok = S.factorize(U.data)
                 if not indefinite:
                     y = S.solve(b)
-                    res = np.linalg.norm(A.tocsr() @ y - b) / np.linalg.norm(b)
+                    res = np.linalg.norm(full @ y - b) / np.linalg.norm(b)
                     assert ok and res < (1e-5 if single else 1e-13), (single, algorithm, res)
                 elif algorithm == 0:
                     assert not ok, ("classic", single)
