@@ -29,6 +29,15 @@ class Parser(argparse.ArgumentParser):
         self._given = {}  # action -> the option string that set it (repeats are refused)
         return super().parse_known_args(args, namespace)
 
+    def _get_values(self, action, arg_strings):
+        # "--E=--": argparse (3.11) drops the "--" of an attached value like an end-of-options marker
+        # and hands the option an empty list, unconverted and unchecked; the "--" is the value given
+        if action.option_strings and action.nargs is None and arg_strings == ["--"]:
+            value = self._get_value(action, "--")
+            self._check_value(action, value)
+            return value
+        return super()._get_values(action, arg_strings)
+
     def error(self, message):  # one line instead of argparse's usage + error
         # "argument --E: --E must be ..." -> "--E must be ..."
         message = re.sub(r"^argument (-[\w-]+): (?=\1 )", "", message)

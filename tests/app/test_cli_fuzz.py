@@ -36,6 +36,7 @@ import tempfile
 from pathlib import Path
 from unittest import mock
 
+import pytest
 from hypothesis import HealthCheck, example, given, settings, strategies as st
 
 from engine import runtime
@@ -289,6 +290,9 @@ FOUND = [
     ["run", "rod-waves", "--cfl", "-1e-3"],                 # idem
     ["run", "rod-waves", "--foo", "a\nb"],                 # a two-line error message
     ["run", "rod-waves", "--record", "blocker/a\nb.rrd"],   # idem
+    ["run", "rod-waves", "--cfl-steps=--"],                 # argparse gave the option [] (internal error)
+    ["run", "springs", "--E=--"],                           # idem
+    ["run", "rod-waves", "--stage=--"],                     # idem
 ]
 
 
@@ -306,6 +310,17 @@ def test_random_argument_lists_give_a_usage_error_or_a_valid_run(argv):
 
 test_random_argument_lists_give_a_usage_error_or_a_valid_run = with_examples(
     test_random_argument_lists_give_a_usage_error_or_a_valid_run, FOUND)
+
+
+@pytest.mark.parametrize("argv,flag", [(["run", "rod-waves", "--cfl-steps=--"], "--cfl-steps"),
+                                       (["run", "springs", "--E=--"], "--E"),
+                                       (["run", "rod-waves", "--threads=--"], "--threads")])
+def test_a_dash_dash_value_is_refused_as_that_value(argv, flag):
+    """'--flag=--': argparse (3.11) drops an attached '--' and hands the option an empty list; the
+    parser takes '--' as the value given, so the error is the option's own, naming it and '--'."""
+    rc, out, err, stub, written = call_main(argv)
+    check_outcome(argv, rc, out, err, stub, written)
+    assert rc == 2 and flag in err and "'--'" in err, err
 
 
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow], print_blob=True)
