@@ -101,7 +101,8 @@ def _number(kind: type, flag: str, meta: dict):
     return parse
 
 
-_STAGE_RANGE = re.compile(r"\s*([0-9]+)\s*(?:-\s*([0-9]+)\s*)?", re.ASCII)
+# at most 9 digits: a longer number is out of range anyway, and int() refuses more than 4300 digits
+_STAGE_RANGE = re.compile(r"\s*([0-9]{1,9})\s*(?:-\s*([0-9]{1,9})\s*)?", re.ASCII)
 
 
 def parse_stages(values: list[str], count: int, lesson_id: str) -> list[int]:

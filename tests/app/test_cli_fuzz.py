@@ -293,6 +293,7 @@ FOUND = [
     ["run", "rod-waves", "--cfl-steps=--"],                 # argparse gave the option [] (internal error)
     ["run", "springs", "--E=--"],                           # idem
     ["run", "rod-waves", "--stage=--"],                     # idem
+    ["run", "rod-waves", "--stage=" + "1" * 5000],          # int() refuses > 4300 digits (internal error)
 ]
 
 
