@@ -290,9 +290,6 @@ FOUND = [
     ["run", "rod-waves", "--cfl", "-1e-3"],                 # idem
     ["run", "rod-waves", "--foo", "a\nb"],                 # a two-line error message
     ["run", "rod-waves", "--record", "blocker/a\nb.rrd"],   # idem
-    ["run", "rod-waves", "--cfl-steps=--"],                 # argparse gave the option [] (internal error)
-    ["run", "springs", "--E=--"],                           # idem
-    ["run", "rod-waves", "--stage=--"],                     # idem
     ["run", "rod-waves", "--stage=" + "1" * 5000],          # int() refuses > 4300 digits (internal error)
 ]
 
@@ -315,10 +312,12 @@ test_random_argument_lists_give_a_usage_error_or_a_valid_run = with_examples(
 
 @pytest.mark.parametrize("argv,flag", [(["run", "rod-waves", "--cfl-steps=--"], "--cfl-steps"),
                                        (["run", "springs", "--E=--"], "--E"),
-                                       (["run", "rod-waves", "--threads=--"], "--threads")])
+                                       (["run", "rod-waves", "--threads=--"], "--threads"),
+                                       (["run", "rod-waves", "--stage=--"], "--stage")])
 def test_a_dash_dash_value_is_refused_as_that_value(argv, flag):
-    """'--flag=--': argparse (3.11) drops an attached '--' and hands the option an empty list; the
-    parser takes '--' as the value given, so the error is the option's own, naming it and '--'."""
+    """'--flag=--' (found by the fuzz test: an internal error): argparse (3.11) drops an attached '--'
+    and hands the option an empty list; the parser takes '--' as the value given, so the error is the
+    option's own, naming it and '--'."""
     rc, out, err, stub, written = call_main(argv)
     check_outcome(argv, rc, out, err, stub, written)
     assert rc == 2 and flag in err and "'--'" in err, err
