@@ -9,7 +9,7 @@ parallel region; Warp: wp.launch on the CPU).  At 64^2 the explicit step's whole
 
 The engine is timed three ways, to say where its cost lies: ``engine``, Taichi's own kernel call;
 ``engine-bound``, the same kernel launched as the explicit steps launch theirs
-(engine.integrators.launch.BoundKernel: the compiled instance looked up once, the launch context
+(engine.launch.BoundKernel: the compiled instance looked up once, the launch context
 filled directly); ``engine-serial``, bound too, with the loop serialized. Taichi's CPU parallel
 loop hands its work to a thread pool and waits for it (the launching thread does none of it), so
 engine-bound minus engine-serial is that hand-over, which no change to the engine's kernels removes.
@@ -21,7 +21,7 @@ from bench import peers
 from bench.interleave import Contender, measure_row
 from bench.timing import sync
 from engine.fields import float_dtype, vec3_array, vec3_ndarray
-from engine.integrators.launch import BoundKernel
+from engine.launch import BoundKernel
 
 SIDE = 64
 

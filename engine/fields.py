@@ -11,6 +11,7 @@ import numpy as np
 import taichi as ti
 
 from engine import runtime
+from engine.launch import kernel as fast_kernel
 
 # -- kernel argument annotations -----------------------------------------------------------
 vec3_array = ti.types.ndarray(dtype=ti.math.vec3, ndim=1)
@@ -118,7 +119,7 @@ def zero_vec3(a: vec3_array):
         a[i] = ti.math.vec3(0.0)
 
 
-@ti.kernel
+@fast_kernel
 def copy_vec3(src: vec3_array, dst: vec3_array):
     for i in range(src.shape[0]):
         dst[i] = src[i]
@@ -137,7 +138,7 @@ def axpy_into(x: vec3_array, dx: vec3_array, s: float, out: vec3_array):
         out[i] = x[i] + s * dx[i]
 
 
-@ti.kernel
+@fast_kernel
 def axpy_inplace(q: vec3_array, t: vec3_array, s: float):
     # q += s t
     for i in range(q.shape[0]):

@@ -25,6 +25,7 @@ from engine.energies.hinge import (dihedral_angle, dihedral_angle_gradient, dihe
                                    hinge_hessian_block, hinge_hessian_parts, row_frame)
 from engine.fields import int_array, mat3_array2, scalar_array, vec3_array, vec3_array2
 from engine.fields import int_array2 as hinge_array
+from engine.launch import kernel as fast_kernel
 
 
 # --------------------------------------------------------------------------------------------
@@ -116,7 +117,7 @@ def hinge_hessian_kernel(x: vec3_array, hinges: hinge_array, k: scalar_array, th
                     out[h, i] = hinge_hessian_block(i, i, psd, W1, W2, g, parts)
 
 
-@ti.kernel
+@fast_kernel
 def hinge_gauss_newton_factors_kernel(x: vec3_array, hinges: hinge_array, k: scalar_array, theta_bar: scalar_array,
                                       mode: ti.i32, w: vec3_array2):
     # the Gauss-Newton hinge Hessian max(W'', 0) g g^T = w w^T:  w[h, slot] = sqrt(max(W'', 0)) dtheta/dx_slot

@@ -48,6 +48,7 @@ from engine.energies.base import Energy
 from engine.errors import ModelError
 from engine.fields import (edge_array, float_dtype, int_array, int_ndarray, mat3_array, per_item, scalar_array,
                            scalar_ndarray, vec3_array)
+from engine.launch import kernel as fast_kernel
 from engine.mesh import edge_incidence
 
 
@@ -137,7 +138,7 @@ def spring_add_forces_kernel(x: vec3_array, offsets: int_array, inc_other: int_a
         f[i] += spring_gather(x, i, offsets, inc_other, inc_inv_L, inc_c_over_L)
 
 
-@ti.kernel
+@fast_kernel
 def spring_hessian_blocks_kernel(x: vec3_array, edges: edge_array, L: scalar_array, c: scalar_array,
                                  psd: ti.i32, blocks: mat3_array):
     # (S3)/(S4) per edge

@@ -7,7 +7,7 @@ order that computes each spring once (its force goes to both ends), completes ea
 force and updates it (:func:`_cloth_block`). The terms of every vertex are summed in the order
 of the generic path's gathers (springs by neighbour, then hinges by index), so the states are
 bitwise the same for any number of blocks and threads (tested). Its arguments are bound once
-(engine.integrators.launch.BoundKernel): a step costs ~30 us of launch instead of ~0.3 ms.
+(engine.launch.BoundKernel): a step costs ~30 us of launch instead of ~0.3 ms.
 :func:`cloth_steps` takes many such steps in ONE launch. The updates are
 engine.integrators.kernels.vertex_update's (E2) and (E3); engine.integrators.explicit.cloth_plan
 builds the plan's arrays.

@@ -25,7 +25,7 @@ from engine.fields import int_ndarray, scalar_ndarray, vec3_ndarray, zero_vec3
 from engine.integrators import batched_steps as B
 from engine.integrators import cloth_kernels as C
 from engine.integrators import kernels as K
-from engine.integrators.launch import BoundKernel
+from engine.launch import BoundKernel
 from engine.integrators.monitor import Monitor
 from engine.model import Model, State
 
@@ -267,7 +267,7 @@ def corner_stepper(model: Model, method: str = "symplectic-euler", work: dict | 
     """The :class:`FastStep` of ``method`` for a model whose one energy has the "corner-gather" force
     form (a membrane); None for any other model. Each step launches the energy's per-element force kernel and
     :func:`engine.integrators.kernels.corner_update_kernel` (gather + update), both bound
-    (:class:`engine.integrators.launch.BoundKernel`): symplectic Euler = forces, gather + update;
+    (:class:`engine.launch.BoundKernel`): symplectic Euler = forces, gather + update;
     velocity Verlet = kick-drift, forces, gather + kick (begin: forces, gather + acceleration). The
     generic path launches the same force kernel, then a zeroing, a gather and an update through
     Taichi's own call; the states are bitwise the same (tested). ``work``: the dict

@@ -54,6 +54,7 @@ import taichi as ti
 
 from engine import newton
 from engine.errors import ParameterError
+from engine.launch import kernel as fast_kernel
 from engine.solvers import SOLVERS, LinearSolver, SolverError, make_solver
 from engine.fields import copy_vec3, dot_vec3, scalar_array, sub_into, vec3_array, zero_vec3
 from engine.model import State
@@ -86,7 +87,7 @@ def step_velocity(x_i, xn_i, inv_dt):
     return inv_dt * (x_i - xn_i)
 
 
-@ti.kernel
+@fast_kernel
 def _be_residual(x: vec3_array, xn: vec3_array, v: vec3_array, f: vec3_array, mass: scalar_array,
                  inv_mass: scalar_array, inv_dt2: float, alpha_over_dt: float, dt: float,
                  rhs: vec3_array) -> float:
@@ -126,7 +127,7 @@ def _be_inertia(x: vec3_array, xn: vec3_array, v: vec3_array, mass: scalar_array
     return s
 
 
-@ti.kernel
+@fast_kernel
 def _be_finish(x: vec3_array, xn: vec3_array, v: vec3_array, inv_mass: scalar_array, inv_dt: float):
     # v+ = (x+ - x_n)/dt ; pinned: x = x_n, v = 0
     for i in range(x.shape[0]):

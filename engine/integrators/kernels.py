@@ -22,7 +22,7 @@ vertices and a = 0, v = 0 for pinned ones (inverse mass 0):
 * engine.integrators.batched_steps: :func:`many_steps` and :func:`axial_steps`, many steps of a
   small spring-only model, or of the rod along its axis, in ONE launch.
 
-Where a step is launched often, its arguments are bound once (engine.integrators.launch.BoundKernel).
+Where a step is launched often, its arguments are bound once (engine.launch.BoundKernel).
 
 Method codes: :data:`METHODS` is the one table of them.
 """

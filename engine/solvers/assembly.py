@@ -29,6 +29,7 @@ import taichi as ti
 
 from engine.energies.base import stencil_triplets
 from engine.fields import int_array, int_array2, int_ndarray, scalar_array
+from engine.launch import FastKernel
 
 __all__ = ["assemble_mass", "assemble_energy", "element_assembler", "triplet_capacity", "CSRPattern", "init_rows",
            "row_assembler", "assemble_rows", "pair_assembler", "assemble_system"]
@@ -309,7 +310,7 @@ def pair_assembler(k1: int, block1, k2: int, block2):
             _add_row(i, values, indptr, p1, e1, c1, q1, b1, s1, k1, block1)
             _add_row(i, values, indptr, p2, e2, c2, q2, b2, s2, k2, block2)
 
-    _PAIR_ASSEMBLERS[key] = assemble
+    _PAIR_ASSEMBLERS[key] = assemble = FastKernel(assemble)
     return assemble
 
 

@@ -39,6 +39,12 @@ SINGLE_PRECISION_IPARM = 28   # iparm(28) = 1: the values, right-hand sides and 
 # 64^2 / 128^2 cloth (Intel Xeon, 2 threads, 15 interleaved rounds of one factorisation and five
 # solves), the f32 solve took 1.55 / 5.05 ms with 0, 1.68 / 7.93 with 1 and 1.45 / 4.81 with 2; f64
 # 1.75 / 8.14, 2.11 / 15.9 and 1.72 / 8.26: mode 1 slower, mode 2 within the noise.
+# iparm(2), the fill-in reducing ordering: METIS nested dissection (2), not MKL's minimum degree (0),
+# whose factors have ~1% more entries but factorise faster at 64^2 only. Measured on the 64^2 / 128^2 /
+# 256^2 cloth's systems (AMD EPYC, 2 threads, interleaved rounds of a factorisation and its solves:
+# f64 factorisation + solve + check; f32 factorisation + two solves + two checks, as the engine's),
+# per-round ratios minimum degree / METIS, median: f32 0.92 / 1.05 / 0.99, f64 0.94 / 1.02 / 0.98;
+# the parallel METIS (3) factorised no faster than METIS (2).
 
 
 def quiet_openmp() -> None:

@@ -7,8 +7,8 @@ import pytest
 
 from engine import tickets
 from engine.integrators import cloth_kernels as C
-from engine.integrators import launch
-from engine.integrators.launch import BoundKernel
+from engine import launch
+from engine.launch import BoundKernel
 from engine.integrators.explicit import SymplecticEuler, VelocityVerlet, cloth_blocks, cloth_plan, cloth_stepper
 from engine.integrators.stepper import Stepper
 from engine.model import Model
