@@ -87,4 +87,15 @@ def machine_info() -> dict:
         load_average=load_average(),
         # what every configuration's process does with Taichi's CPU pool threads (engine.pinning)
         elastic_pin=(os.environ.get("ELASTIC_PIN") or "auto").strip().lower(),
+        thread_waits=thread_waits(),
     )
+
+
+def thread_waits() -> dict:
+    """How long MKL's OpenMP threads (KMP_BLOCKTIME, ms) and OpenBLAS's (OPENBLAS_THREAD_TIMEOUT)
+    wait awake after their work in the benchmark's processes: the engine's settings (engine/__init__.py,
+    engine.solvers.pardiso.quiet_openmp), or the values set before the run, which they keep."""
+    import engine  # noqa: F401  (sets OPENBLAS_THREAD_TIMEOUT unless set)
+    from engine.solvers.pardiso import quiet_openmp
+    quiet_openmp()
+    return {k: os.environ.get(k) for k in ("KMP_BLOCKTIME", "OPENBLAS_THREAD_TIMEOUT")}

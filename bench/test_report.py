@@ -1,6 +1,7 @@
 """The report tooling without timing: ``python -m bench --help`` works, and the report writer turns
 synthetic benchmark data into the JSON, Markdown and PNG files with the derived figures right."""
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -123,6 +124,8 @@ def test_report_writer_on_synthetic_data(tmp_path):
                     "## Cloth: backward-Euler", "## Rod", "## Scaling with N", "## Start-up", "## Bandwidth floor"):
         assert section in md, section
     assert "T-cost_vs_E.png" in md and "latest-cost_vs_E.png" in paths["latest_md"].read_text()
+    # the libraries' thread waits in effect (the engine's settings unless set before the run)
+    assert f"KMP_BLOCKTIME={os.environ['KMP_BLOCKTIME']} ms" in md and "OPENBLAS_THREAD_TIMEOUT=" in md
     assert "**missed** (worst 1.20x (spread up to 1.20) at 128^2 springs+bending)" in md and "## Against the peers" in md
     assert json.loads(paths["json"].read_text())["targets"][0]["met"] is True
 

@@ -41,6 +41,8 @@ import numpy as np
 import scipy.sparse
 import scipy.sparse.linalg
 
+from engine.solvers.pardiso import quiet_openmp
+
 PEERS = ("scipy-cg", "pyamg-cg", "pardiso", "pardiso-spsolve", "cholmod")
 REANALYSES = {"pardiso-spsolve": "analysis every call (pypardiso.spsolve)",
               "cholmod": "analysis every step (cholespy cannot refactorise)"}
@@ -53,7 +55,7 @@ def available(name: str) -> str | None:
     mod = _MODULE.get(name)
     if mod is None:
         return None
-    _quiet_openmp()
+    quiet_openmp()   # the engine's MKL setting, so both drive PARDISO under the same conditions
     try:
         __import__(mod)
     except Exception as exc:  # ImportError, or mkl_rt not found
@@ -65,12 +67,6 @@ def available(name: str) -> str | None:
         except Exception as exc:
             return f"MKL PARDISO cannot be loaded ({exc})"
     return None
-
-
-def _quiet_openmp() -> None:
-    """The engine's setting (engine.solvers): MKL's OpenMP threads sleep when a solve ends rather
-    than spin, so both drive PARDISO under the same conditions."""
-    os.environ.setdefault("KMP_BLOCKTIME", "0")
 
 
 def _threads() -> int:

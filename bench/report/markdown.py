@@ -35,6 +35,14 @@ def _pin_row(pin) -> list:
     return [("Taichi's CPU pool threads", said)]
 
 
+def _waits_row(waits) -> list:
+    """The machine table's row on how long the libraries' threads wait awake (bench.machine.thread_waits)."""
+    if not waits:
+        return []
+    return [("thread waits after work", f"MKL (PARDISO) KMP_BLOCKTIME={waits.get('KMP_BLOCKTIME')} ms, "
+                                        f"OpenBLAS OPENBLAS_THREAD_TIMEOUT={waits.get('OPENBLAS_THREAD_TIMEOUT')}")]
+
+
 def markdown(doc: dict, image_prefix: str) -> str:
     rows = doc["rows"]
     m = doc.get("machine", {})
@@ -62,7 +70,7 @@ def markdown(doc: dict, image_prefix: str) -> str:
         ("memory", f"{(m.get('memory_bytes') or 0) / 2 ** 30:.0f} GiB"), ("system", m.get("system", "?")),
         ("load average at start / end", f"{m.get('load_average')} / {doc.get('load_average_end')}"),
         ("Python", m.get("python")), ("versions", ", ".join(f"{k} {v}" for k, v in m.get("versions", {}).items())),
-        ("commit", m.get("commit") or "?")] + _pin_row(m.get("elastic_pin")))
+        ("commit", m.get("commit") or "?")] + _pin_row(m.get("elastic_pin")) + _waits_row(m.get("thread_waits")))
 
     # targets
     L += ["## Targets (measured and reported, never asserted)", ""]

@@ -47,12 +47,22 @@ SINGLE_PRECISION_IPARM = 28   # iparm(28) = 1: the values, right-hand sides and 
 # the parallel METIS (3) factorised no faster than METIS (2).
 
 
+MKL_BLOCKTIME_MS = "1"
+
+
 def quiet_openmp() -> None:
-    """MKL's OpenMP threads sleep as soon as a factorisation ends instead of spinning for 200 ms
-    (KMP_BLOCKTIME's default): the Taichi kernels that follow (assembly, the residual check) need
-    the same two cores.  Measured on the 64^2 cloth, one solve: 188-228 ms against 250-270 ms.
-    Must be set before MKL's OpenMP runtime starts; a value the user set is kept."""
-    os.environ.setdefault("KMP_BLOCKTIME", "0")
+    """MKL's OpenMP threads wait MKL_BLOCKTIME_MS = 1 ms after a parallel region before they sleep,
+    instead of KMP_BLOCKTIME's default 200 ms: the Taichi kernels that follow a solve (the update, the
+    next step's forces and assembly) need the same two cores. Not 0 either: each of a step's MKL calls
+    after the factorisation (two back-substitutions, two threaded residual products) then woke the
+    sleeping threads again. Measured on the 64^2 cloth (AMD EPYC, 2 threads, four processes each,
+    30 interleaved rounds): the engine's back-substitutions and checks 2.6-3.3 ms with 0 against
+    1.7-1.9 ms with 1 (2 and 5 alike), the whole step 14.3-15.0 ms against 14.8-16.2, PARDISO's f64
+    factorisation + solve alone 16.5-17.4 against 16.5-18.1; at 128^2 no difference beyond the noise.
+    (An earlier 200 ms against 0: one 64^2 solve 250-270 ms against 188-228.) Must be set before
+    MKL's OpenMP runtime starts; a value the user set is kept. The benchmark's PARDISO peers run in
+    the same processes with the same setting."""
+    os.environ.setdefault("KMP_BLOCKTIME", MKL_BLOCKTIME_MS)
 
 
 def pardiso_available() -> bool:
