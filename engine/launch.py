@@ -24,7 +24,7 @@ import weakref
 
 import numpy as np
 import taichi as ti
-from taichi.lang import _ndarray, impl
+from taichi.lang import impl
 from taichi.lang.enums import Layout
 from taichi.lang.util import cook_dtype
 from taichi.types import ndarray_type, primitive_types
@@ -57,7 +57,7 @@ def _kind(needed, value):
             return None
         return _INT if is_signed(cook_dtype(needed)) else _UINT
     if isinstance(needed, ndarray_type.NdarrayType):
-        if isinstance(value, _ndarray.Ndarray):
+        if isinstance(value, ti.Ndarray):
             return _NDARRAY if value.grad is None else None
         if isinstance(value, np.ndarray) and value.flags.c_contiguous:
             return _EXT

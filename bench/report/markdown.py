@@ -35,12 +35,10 @@ def _pin_row(pin) -> list:
     return [("Taichi's CPU pool threads", said)]
 
 
-def _waits_row(waits) -> list:
+def _waits_row(w) -> list:
     """The machine table's row on how long the libraries' threads wait awake (bench.machine.thread_waits)."""
-    if not waits:
-        return []
-    return [("thread waits after work", f"MKL (PARDISO) KMP_BLOCKTIME={waits.get('KMP_BLOCKTIME')} ms, "
-                                        f"OpenBLAS OPENBLAS_THREAD_TIMEOUT={waits.get('OPENBLAS_THREAD_TIMEOUT')}")]
+    return [("thread waits after work", f"MKL (PARDISO) KMP_BLOCKTIME={w.get('KMP_BLOCKTIME')} ms, OpenBLAS "
+                                        f"OPENBLAS_THREAD_TIMEOUT={w.get('OPENBLAS_THREAD_TIMEOUT')}")] if w else []
 
 
 def markdown(doc: dict, image_prefix: str) -> str:
