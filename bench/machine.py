@@ -96,6 +96,6 @@ def thread_waits() -> dict:
     wait awake after their work in the benchmark's processes: the engine's settings (engine/__init__.py,
     engine.solvers.pardiso.quiet_openmp), or the values set before the run, which they keep."""
     import engine  # noqa: F401  (sets OPENBLAS_THREAD_TIMEOUT unless set)
-    from engine.solvers.pardiso import quiet_openmp
-    quiet_openmp()
-    return {k: os.environ.get(k) for k in ("KMP_BLOCKTIME", "OPENBLAS_THREAD_TIMEOUT")}
+    from engine.solvers.pardiso import MKL_BLOCKTIME_MS
+    return dict(KMP_BLOCKTIME=os.environ.get("KMP_BLOCKTIME", MKL_BLOCKTIME_MS),
+                OPENBLAS_THREAD_TIMEOUT=os.environ.get("OPENBLAS_THREAD_TIMEOUT"))

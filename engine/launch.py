@@ -103,7 +103,8 @@ def _launcher(prim, args: tuple, varying):
     compiled = prim.compiled_kernels[prim.ensure_compiled(*args)]
     prog = impl.get_runtime().prog
     config, caps = prog.config(), prog.get_device_caps()
-    setters = []   # (position in call, slot index, kind, bound value or None, shape for _EXT)
+    ctx_type = type(compiled.make_launch_context())
+    setters = []   # (the context's setter, slot index, kind, shape for _EXT, position in call or None, bound values)
     slot = 0
     for pos, (needed, a) in enumerate(zip(annotations, args)):
         k = _kind(needed, a)
@@ -112,50 +113,33 @@ def _launcher(prim, args: tuple, varying):
         if k is None:
             return None
         shape = _ext_shape(needed, a) if k == _EXT else None
-        if pos in varying:
-            val = None
-        elif k == _NDARRAY:
-            val = a.arr
-        elif k == _EXT:
-            val = (int(a.ctypes.data), a.nbytes)
-        elif k == _FLOAT:
-            val = float(a)
-        else:
-            val = int(a)
-        setters.append((pos, (slot,), k, val, shape))
+        bound = None if pos in varying else _values(k, a, shape)
+        setters.append((getattr(ctx_type, _SETTERS[k]), (slot,), k, shape, pos if bound is None else None, bound))
         slot += 1
     setters = tuple(setters)
 
     def launch(call):
         ctx = compiled.make_launch_context()
-        for pos, idx, k, val, shape in setters:
-            if val is None:
-                a = call[pos]
-                if k == _NDARRAY:
-                    ctx.set_arg_ndarray(idx, a.arr)
-                elif k == _FLOAT:
-                    ctx.set_arg_float(idx, float(a))
-                elif k == _INT:
-                    ctx.set_arg_int(idx, int(a))
-                elif k == _UINT:
-                    ctx.set_arg_uint(idx, int(a))
-                else:
-                    ctx.set_arg_external_array_with_shape(idx, int(a.ctypes.data), a.nbytes, shape, 0)
-            elif k == _NDARRAY:
-                ctx.set_arg_ndarray(idx, val)
-            elif k == _FLOAT:
-                ctx.set_arg_float(idx, val)
-            elif k == _INT:
-                ctx.set_arg_int(idx, val)
-            elif k == _UINT:
-                ctx.set_arg_uint(idx, val)
-            else:
-                ctx.set_arg_external_array_with_shape(idx, val[0], val[1], shape, 0)
+        for setter, idx, k, shape, pos, bound in setters:
+            setter(ctx, idx, *(bound if pos is None else _values(k, call[pos], shape)))
         prog.launch_kernel(prog.compile_kernel(config, caps, compiled), ctx)
         if sync:
             ti.sync()
         return getattr(ctx, getter)((0,)) if has_ret else None
     return launch
+
+
+# the launch context's setter per argument kind, and the values it takes after the slot index
+_SETTERS = {_NDARRAY: "set_arg_ndarray", _EXT: "set_arg_external_array_with_shape", _INT: "set_arg_int",
+            _UINT: "set_arg_uint", _FLOAT: "set_arg_float"}
+
+
+def _values(k, a, shape) -> tuple:
+    if k == _NDARRAY:
+        return (a.arr,)
+    if k == _EXT:
+        return (int(a.ctypes.data), a.nbytes, shape, 0)
+    return (float(a),) if k == _FLOAT else (int(a),)
 
 
 class BoundKernel:
