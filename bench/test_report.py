@@ -209,6 +209,37 @@ def test_interleaved_rows_give_per_round_ratios(tmp_path):
     assert len(t) == 2 and t[1]["met"] is False and "pardiso-factor " in t[1]["measured"]
 
 
+def test_library_target_says_the_techniques_floor_round_by_round(tmp_path):
+    """The library target's reasons, round by round: the technique alone against f64 alone (mixed / f64,
+    not its inverse), what the engine adds to the technique, what a round allows under the goal, and
+    how many rounds meet it (per round, not from the medians); no such line when the three were not
+    timed in one interleaved row."""
+    f64 = [1.0, 1.0, 1.0, 1.0]
+    mixed = [0.6, 0.7, 0.6, 0.65]
+    engine = [0.66, 0.84, 0.72, 0.78]          # adds 10%, 20%, 20%, 20%: rounds at 0.66, 0.84, 0.72, 0.78
+    cl = dict(side=128, n=16384, m=48641, h=48133, model="springs+bending")
+
+    def doc_of(split, where):
+        raw = tmp_path / where
+        raw.mkdir()
+        lib = dict(solver="pardiso", tol=1e-5, library_only=True)
+        peers = {"peer-pardiso-factor": (f64, lib), "peer-pardiso-factor-mixed": (mixed, dict(lib, precision="mixed"))}
+        eng = {"engine-pardiso": (engine, dict(solver="pardiso", tol=1e-5))}
+        b = ([_interleaved("cloth-implicit-step", "row-a", eng, **cl), _interleaved("cloth-implicit-step", "row-b", peers, **cl)]
+             if split else [_interleaved("cloth-implicit-step", "row-a", {**eng, **peers}, **cl)])
+        (raw / "bench-t2-f64.json").write_text(json.dumps(dict(benchmarks=b)))
+        doc = report.build(raw)
+        return [t for t in doc["targets"] if t["name"].startswith("implicit step against PARDISO") and "128^2" in t["name"]][0]
+    t = doc_of(False, "one")
+    assert t["met"] is False                   # one round of four above 0.8
+    line = t["why"][0]
+    assert "128^2, round by round (4 rounds)" in line
+    assert "alone 0.62 (0.60-0.70)" in line    # mixed / f64 per round, median 0.625
+    assert "adds 20% (10% to 20%)" in line
+    assert "allows 28% (14% to 33%): 3 of 4 rounds at or under it" in line   # 0.8 / floor - 1 per round
+    assert "why" not in doc_of(True, "two")    # not timed in the same rounds: no round-by-round reasons
+
+
 def test_a_rerun_is_checked_against_the_reference_spread(tmp_path):
     """report.agreement / against_text: a rerun's ratio inside the reference's spread passes, one
     outside is named; rows without a spread are not judged."""
