@@ -22,6 +22,16 @@ SERIAL_BELOW = 20000
 # the split depends on the mesh alone and the kernel's result not on the number of threads.
 WHOLE_SPLIT_FROM = 512
 
+# Below this many vertices a light per-vertex pass of the implicit step (the copy of x_n, the Newton
+# residual, the weight added to the forces, the Newton update, the step's velocities) runs serialized
+# on the launching thread: Taichi's CPU parallel loop hands its work to the thread pool and waits for
+# it, ~30-40 us per loop on the 2-core CPU (a loop over 4096 vertices: 36 us parallel, 11 us
+# serial), more right after PARDISO has had the cores. Measured in the backward-Euler step (Intel
+# Xeon, 2 threads, PARDISO; the five passes timed inside the step, serial and parallel steps
+# alternating, medians): 64^2 946 -> 750 us per step, 128^2 2631 -> 2386, 181^2 (32761 vertices)
+# 4303 either way, 256^2 7428 parallel against 7969 serial.
+VERTEX_PASS_SERIAL_BELOW = 1 << 15
+
 # Spring-only models below this many vertices run many explicit steps per kernel launch (one
 # serial kernel: a chain or a frame is cheaper to step serially than to launch kernels for).
 MANY_STEPS_BELOW = 50000

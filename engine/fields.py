@@ -10,7 +10,7 @@ vertices (they never move and carry no unknowns), so "free" reductions skip them
 import numpy as np
 import taichi as ti
 
-from engine import runtime
+from engine import constants, runtime
 from engine.launch import kernel as fast_kernel
 
 # -- kernel argument annotations -----------------------------------------------------------
@@ -113,6 +113,14 @@ class WorkArrays:
 
 # -- small per-vertex kernels ------------------------------------------------------------------
 
+def serial_pass(n: int) -> bool:
+    """Whether a light per-vertex pass over ``n`` vertices runs serialized (the launching thread
+    alone) rather than on the thread pool: below engine.constants.VERTEX_PASS_SERIAL_BELOW, where
+    the pool's hand-over costs more than the pass. A kernel takes it as a template argument
+    (``ti.loop_config(serialize=serial)``); a per-vertex pass gives the same bits either way."""
+    return int(n) < constants.VERTEX_PASS_SERIAL_BELOW
+
+
 @ti.kernel
 def zero_vec3(a: vec3_array):
     for i in range(a.shape[0]):
@@ -120,9 +128,15 @@ def zero_vec3(a: vec3_array):
 
 
 @fast_kernel
-def copy_vec3(src: vec3_array, dst: vec3_array):
+def _copy_vec3(src: vec3_array, dst: vec3_array, serial: ti.template()):
+    ti.loop_config(serialize=serial)
     for i in range(src.shape[0]):
         dst[i] = src[i]
+
+
+def copy_vec3(src, dst) -> None:
+    """dst = src (one vertex per iteration; serialized below VERTEX_PASS_SERIAL_BELOW vertices)."""
+    _copy_vec3(src, dst, serial_pass(src.shape[0]))
 
 
 @ti.kernel
@@ -139,10 +153,15 @@ def axpy_into(x: vec3_array, dx: vec3_array, s: float, out: vec3_array):
 
 
 @fast_kernel
-def axpy_inplace(q: vec3_array, t: vec3_array, s: float):
-    # q += s t
+def _axpy_inplace(q: vec3_array, t: vec3_array, s: float, serial: ti.template()):
+    ti.loop_config(serialize=serial)
     for i in range(q.shape[0]):
         q[i] += s * t[i]
+
+
+def axpy_inplace(q, t, s: float) -> None:
+    """q += s t (serialized below VERTEX_PASS_SERIAL_BELOW vertices)."""
+    _axpy_inplace(q, t, float(s), serial_pass(q.shape[0]))
 
 
 @ti.kernel

@@ -183,7 +183,7 @@ def cloth_step(x: vec3_array, v: vec3_array, dt: float, w: vec3_array, I: int_ar
 
 @ti.kernel
 def cloth_forces(x: vec3_array, f: vec3_array, w: vec3_array, I: int_array, F: scalar_array, mass: scalar_array,
-                 with_hinges: ti.template()):
+                 with_hinges: ti.template(), serial: ti.template()):
     """f = the model's forces at x, as engine.model.Model.forces computes them (each vertex's springs,
     then its hinges, then m g; pinned vertices 0), bitwise: the blocks' loop of :func:`cloth_step`
     writing each vertex's elastic force (CLOTH_FORCES), then a per-vertex loop adding the weight
@@ -193,6 +193,7 @@ def cloth_forces(x: vec3_array, f: vec3_array, w: vec3_array, I: int_array, F: s
         if it % BLOCK_SLOTS == 0:
             _cloth_block(it // BLOCK_SLOTS, x, f, w, I, F, 0.0, CLOTH_FORCES, with_hinges)
     g = ti.math.vec3(F[I[H_F_G]], F[I[H_F_G] + 1], F[I[H_F_G] + 2])
+    ti.loop_config(serialize=serial)   # engine.fields.serial_pass
     for i in range(f.shape[0]):
         f[i] = finish_force(f[i], mass[i], F[i], g)
 

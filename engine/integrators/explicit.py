@@ -21,7 +21,7 @@ import math
 import numpy as np
 
 from engine import tickets
-from engine.fields import int_ndarray, scalar_ndarray, vec3_ndarray, zero_vec3
+from engine.fields import int_ndarray, scalar_ndarray, serial_pass, vec3_ndarray, zero_vec3
 from engine.integrators import batched_steps as B
 from engine.integrators import cloth_kernels as C
 from engine.integrators import kernels as K
@@ -203,7 +203,7 @@ def cloth_forces(model: Model, n_blocks: int | None = None, work: dict | None = 
     if parts is None:
         return None
     I, F, _, w, with_h, _ = parts
-    launch = BoundKernel(C.cloth_forces, (w, I, F, model.mass_nd), (with_h,))
+    launch = BoundKernel(C.cloth_forces, (w, I, F, model.mass_nd), (with_h, serial_pass(model.n)))
 
     def forces(x, f):
         if f.shape[0] != model.n or x.shape[0] != model.n:

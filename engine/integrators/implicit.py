@@ -56,7 +56,7 @@ from engine import newton
 from engine.errors import ParameterError
 from engine.launch import kernel as fast_kernel
 from engine.solvers import SOLVERS, LinearSolver, SolverError, make_solver
-from engine.fields import copy_vec3, dot_vec3, scalar_array, sub_into, vec3_array, zero_vec3
+from engine.fields import copy_vec3, dot_vec3, scalar_array, serial_pass, sub_into, vec3_array, zero_vec3
 from engine.model import State
 
 EXACT_RETRY = 5     # after a failure, retry the exact Hessian every EXACT_RETRY Newton iterations
@@ -90,10 +90,11 @@ def step_velocity(x_i, xn_i, inv_dt):
 @fast_kernel
 def _be_residual(x: vec3_array, xn: vec3_array, v: vec3_array, f: vec3_array, mass: scalar_array,
                  inv_mass: scalar_array, inv_dt2: float, alpha_over_dt: float, dt: float,
-                 rhs: vec3_array) -> float:
+                 rhs: vec3_array, serial: ti.template()) -> float:
     # rhs = -grad Phi = f(x) + M g - M (x - x_n - dt v_n)/dt^2 - alpha M (x - x_n)/dt  (free; f has M g)
-    # returns |rhs|^2
+    # returns |rhs|^2 (serialized: summed in vertex order)
     s = 0.0
+    ti.loop_config(serialize=serial)
     for i in range(x.shape[0]):
         r = ti.math.vec3(0.0)
         if inv_mass[i] > 0.0:
@@ -128,8 +129,10 @@ def _be_inertia(x: vec3_array, xn: vec3_array, v: vec3_array, mass: scalar_array
 
 
 @fast_kernel
-def _be_finish(x: vec3_array, xn: vec3_array, v: vec3_array, inv_mass: scalar_array, inv_dt: float):
+def _be_finish(x: vec3_array, xn: vec3_array, v: vec3_array, inv_mass: scalar_array, inv_dt: float,
+               serial: ti.template()):
     # v+ = (x+ - x_n)/dt ; pinned: x = x_n, v = 0
+    ti.loop_config(serialize=serial)
     for i in range(x.shape[0]):
         if inv_mass[i] > 0.0:
             v[i] = step_velocity(x[i], xn[i], inv_dt)
@@ -244,7 +247,7 @@ class BackwardEuler:
             copy_vec3(work["xn"], x)  # leave the state as it was
             raise SolverError(f"backward-euler step at t={state.t:.6g} s, Newton iteration {len(res.linear)}: "
                               f"{res.linear[-1].describe()}; raise max_iter or tol, or use solver='cholesky'")
-        _be_finish(x, work["xn"], state.v, model.inv_mass_nd, 1.0 / dt)
+        _be_finish(x, work["xn"], state.v, model.inv_mass_nd, 1.0 / dt, serial_pass(model.n))
         state.t += dt
         return info
 
@@ -266,6 +269,7 @@ class _StepProblem(newton.Problem):
         self.W_n = self.model.elastic_energy(self.xn) if be.line_search else 0.0
         self.g0 = None
         self.gradient_norms = []
+        self.serial = serial_pass(self.model.n)
 
     def objective(self, x) -> float:
         """Phi(x) of (IP)."""
@@ -298,7 +302,7 @@ class _StepProblem(newton.Problem):
         model, work, be, dt = self.model, self.work, self.be, self.dt
         self.forces(x, work["f"])
         g2 = _be_residual(x, self.xn, self.v, work["f"], model.mass_nd, model.inv_mass_nd, self.inv_dt2, self.a_dt,
-                          dt, self.rhs)
+                          dt, self.rhs, self.serial)
         if k > 0 and (be.rayleigh_beta > 0.0 or model.dampers):   # at x = x_n (k = 0) their terms vanish
             _, hq = self._damping_product(x)   # the damping force -D_n v+ = -D_n (x - x_n)/dt, or beta H_n
             coef = 1.0 / dt if model.dampers else be.rayleigh_beta / dt

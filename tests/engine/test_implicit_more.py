@@ -279,3 +279,30 @@ def test_newton_on_a_settled_hanging_cloth_stops_at_once():
     stepper.step(state, 1.0 / 60.0, 3)
     assert stepper.last_info.newton_converged
     assert len(stepper.last_info.gradient_norms) <= 2
+
+
+@pytest.mark.parametrize("newton_iterations", [1, 3])
+def test_serial_and_parallel_vertex_passes_give_the_same_steps(monkeypatch, newton_iterations):
+    """The implicit step's per-vertex passes (the copy of x_n, the residual, the weight in the forces,
+    the update, the velocities) run serialized below VERTEX_PASS_SERIAL_BELOW vertices and on the
+    thread pool above: the same states either way (Newton with its line search included, whose
+    residual norm is a sum taken in another order when parallel)."""
+    from engine import constants
+    from engine.fields import serial_pass
+    from engine.solvers import pardiso_available
+
+    assert serial_pass(64 * 64) and serial_pass(128 * 128) and not serial_pass(256 * 256)
+
+    def steps(below):
+        monkeypatch.setattr(constants, "VERTEX_PASS_SERIAL_BELOW", below)
+        model = cloth(12, B=1e-3).model
+        st = model.make_state(None, 0.02 * np.random.default_rng(5).standard_normal((model.n, 3)))
+        stepper = Stepper(model, BackwardEuler("pardiso" if pardiso_available() else "cholesky", tol=1e-8,
+                                               newton_iterations=newton_iterations, newton_tol=1e-10))
+        stepper.step(st, 1 / 60, 4)
+        return st.numpy(), stepper.last_info
+    (a, ia), (b, ib) = steps(0), steps(1 << 40)   # every pass on the pool; every pass serialized
+    assert ia.newton_iterations == ib.newton_iterations == newton_iterations
+    assert np.array_equal(a.x, b.x) and np.array_equal(a.v, b.v)
+    assert not np.array_equal(a.x, cloth(12, B=1e-3).model.X)   # it moved
+    np.testing.assert_allclose(ia.gradient_norms, ib.gradient_norms, rtol=1e-12)
