@@ -47,6 +47,13 @@ def _hinge_entry(x: ti.template(), I: ti.template(), F: ti.template(), hv, f_h, 
 
 
 @ti.func
+def _spring_entry(x: ti.template(), I: ti.template(), F: ti.template(), xi, cols, f0, q):
+    """The force on the vertex at xi of entry q of a spring list: neighbour I[cols + q], its two
+    coefficients at F[f0 + 2q], F[f0 + 2q + 1] (engine.integrators.explicit.cloth_plan's layout)."""
+    return spring_force(xi - x[I[cols + q]], F[f0 + 2 * q + 1], F[f0 + 2 * q])
+
+
+@ti.func
 def _add_slots(w: ti.template(), I: ti.template(), hv, q, n, lo, hi, f: ti.template()):
     """Add hinge entry q's forces to the hinge sums w[n + v] of its slots v in the block [lo, hi)."""
     for a in ti.static(range(4)):
@@ -89,7 +96,7 @@ def _cloth_block(b, x: ti.template(), v: ti.template(), w: ti.template(), I: ti.
         acc = ti.math.vec3(0.0)
         xi = x[i]
         for q in range(I[in_off + p], I[in_off + p + 1]):
-            acc += spring_force(xi - x[I[in_j + q]], F[f_in + 2 * q + 1], F[f_in + 2 * q])
+            acc += _spring_entry(x, I, F, xi, in_j, f_in, q)
         w[i] = acc
     if ti.static(with_hinges):
         hv = I[H_HV]
@@ -115,8 +122,7 @@ def _cloth_block(b, x: ti.template(), v: ti.template(), w: ti.template(), I: ti.
         q = I[up_off + i]
         qe = I[up_off + i + 1]
         while q + SPRINGS_PER_ITER - 1 < qe:
-            ts = [spring_force(xi - x[I[up_c + q + k]], F[f_up + 2 * (q + k) + 1], F[f_up + 2 * (q + k)])
-                  for k in ti.static(range(SPRINGS_PER_ITER))]
+            ts = [_spring_entry(x, I, F, xi, up_c, f_up, q + k) for k in ti.static(range(SPRINGS_PER_ITER))]
             for k in ti.static(range(SPRINGS_PER_ITER)):
                 c = I[up_c + q + k]
                 acc += ts[k]
@@ -125,7 +131,7 @@ def _cloth_block(b, x: ti.template(), v: ti.template(), w: ti.template(), I: ti.
             q += SPRINGS_PER_ITER
         while q < qe:
             c = I[up_c + q]
-            t = spring_force(xi - x[c], F[f_up + 2 * q + 1], F[f_up + 2 * q])
+            t = _spring_entry(x, I, F, xi, up_c, f_up, q)
             acc += t
             if c < hi:
                 w[c] = w[c] - t
