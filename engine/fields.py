@@ -145,7 +145,7 @@ def scale_vec3(u: vec3_array, scale: float):
         u[i] *= scale
 
 
-@ti.kernel
+@fast_kernel
 def axpy_into(x: vec3_array, dx: vec3_array, s: float, out: vec3_array):
     # out = x + s dx
     for i in range(x.shape[0]):
@@ -171,7 +171,7 @@ def sub_into(a: vec3_array, b: vec3_array, out: vec3_array):
         out[i] = a[i] - b[i]
 
 
-@ti.kernel
+@fast_kernel
 def dot_vec3(a: vec3_array, b: vec3_array) -> float:
     # sum_i a_i . b_i over every vertex
     s = 0.0

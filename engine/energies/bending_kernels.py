@@ -61,7 +61,7 @@ def hinge_energies_kernel(x: vec3_array, hinges: hinge_array, k: scalar_array, t
         out[h] = hinge_energy(e, a0, a1, k[h], theta_bar[h], mode)
 
 
-@ti.kernel
+@fast_kernel
 def bending_energy_kernel(x: vec3_array, hinges: hinge_array, k: scalar_array, theta_bar: scalar_array,
                           mode: ti.i32) -> float:
     # sum_e W_e, (W1)/(W2); parallel reduction

@@ -17,6 +17,7 @@ from engine.energies.triangle import (block_ab, condition_gradients, deformation
                                      triangle_frame)
 from engine.fields import int_array, mat3_array2, scalar_array, vec3_array, vec3_array2
 from engine.fields import int_array2 as triangle_array
+from engine.launch import kernel as fast_kernel
 
 
 @ti.func
@@ -39,7 +40,7 @@ def membrane_block(blocks: ti.template(), t, a, b) -> ti.math.mat3:
 # Kernels (per triangle, then per vertex: no atomics)
 # --------------------------------------------------------------------------------------------
 
-@ti.kernel
+@fast_kernel
 def membrane_energy_kernel(x: vec3_array, tris: triangle_array, Dinv: ti.types.ndarray(dtype=mat2, ndim=1),
                            area: scalar_array, p0: scalar_array, p1: scalar_array, model: ti.template()) -> float:
     total = 0.0

@@ -103,7 +103,7 @@ def spring_pair_block(blocks: ti.template(), e, a, b) -> ti.math.mat3:
     return K
 
 
-@ti.kernel
+@fast_kernel
 def spring_energy_kernel(x: vec3_array, edges: edge_array, L: scalar_array, c: scalar_array) -> float:
     # (S1) W = sum_e 1/2 c_e (l_e/L_e - 1)^2
     W = 0.0

@@ -115,10 +115,12 @@ def _be_add_scaled(rhs: vec3_array, hq: vec3_array, coef: float, inv_mass: scala
     return s
 
 
-@ti.kernel
+@fast_kernel
 def _be_inertia(x: vec3_array, xn: vec3_array, v: vec3_array, mass: scalar_array, inv_mass: scalar_array,
-                g: ti.math.vec3, inv_dt2: float, alpha_over_dt: float, dt: float) -> float:
+                gx: float, gy: float, gz: float, inv_dt2: float, alpha_over_dt: float, dt: float) -> float:
     # sum_free m_i [ |x - x_n - dt v_n|^2/(2 dt^2) + alpha/(2 dt) |x - x_n|^2 - g.(x - x_n) ]   (IP)
+    # (g as three scalars: a vector argument is never launched directly, engine.launch)
+    g = ti.math.vec3(gx, gy, gz)
     s = 0.0
     for i in range(x.shape[0]):
         if inv_mass[i] > 0.0:
@@ -270,11 +272,12 @@ class _StepProblem(newton.Problem):
         self.g0 = None
         self.gradient_norms = []
         self.serial = serial_pass(self.model.n)
+        self.g = tuple(float(c) for c in self.model.gravity_vec)
 
     def objective(self, x) -> float:
         """Phi(x) of (IP)."""
         be, model, xn, dt = self.be, self.model, self.xn, self.dt
-        phi = _be_inertia(x, xn, self.v, model.mass_nd, model.inv_mass_nd, model.gravity_vec, self.inv_dt2,
+        phi = _be_inertia(x, xn, self.v, model.mass_nd, model.inv_mass_nd, *self.g, self.inv_dt2,
                           self.a_dt, dt)
         phi += model.elastic_energy(x) - self.W_n
         if be.rayleigh_beta > 0.0 or model.dampers:
