@@ -5,6 +5,8 @@ tools that open recordings (lessons/tools/); and the lessons never import those 
 import ast
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -279,3 +281,22 @@ def test_the_viewer_tools_import_neither_the_app_nor_the_lessons():
                                                   if m.startswith("lessons.") and not m.startswith("lessons.tools"))
                  for p in _source_files("lessons/tools")}
     assert not {k: v for k, v in offenders.items() if v}, offenders
+
+
+
+def test_a_test_reading_the_default_runs_is_in_their_worker_group(default_runs, request):
+    """The test run's split over its two pytest-xdist workers (pyproject.toml: -n 2 --dist loadgroup):
+    every test that reads the session's default runs carries the ``default-runs`` group
+    (tests/conftest.py) and xdist sends the whole group to one worker, so the six lessons run once per
+    test run, not once per worker. xdist reads the group from a suffix it writes into each test's id;
+    pytest 9.2 keeps ids where that write no longer lands (pytest-xdist issue 1386), and then nothing
+    fails: every lesson simply runs on both workers (943 against 786 s here). This test fails instead.
+    Asking for default_runs runs no lesson (it is lazy)."""
+    assert request.node.get_closest_marker("xdist_group").args == ("default-runs",)
+    if not hasattr(request.config, "workerinput"):
+        pytest.skip("not under pytest-xdist: nothing is split")
+    if request.config.getvalue("dist") != "loadgroup" and not request.config.getvalue("loadgroup"):
+        pytest.skip("pytest-xdist runs without --dist loadgroup here")
+    assert request.node.nodeid.endswith("@default-runs"), (
+        f"{request.node.nodeid}: pytest-xdist did not group it (pytest {pytest.__version__}); the default runs "
+        "would be made on both workers - pyproject.toml pins the pytest versions whose ids xdist can group")
