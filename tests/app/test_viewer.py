@@ -75,7 +75,9 @@ def viewer_recordings(request) -> Path:
 
 
 @pytest.mark.parametrize("lesson_id", LESSON_IDS)
-def test_recording_in_viewer(lesson_id, request):
+def test_recording_in_viewer(lesson_id, request, default_runs):
+    # default_runs (lazy: it runs nothing) puts the test in the default-runs worker group (tests/conftest.py),
+    # so the recordings it opens are made once per test run, on the worker that made them for the others
     if os.environ.get("ELASTIC_SKIP_VIEWER") == "1":
         pytest.skip(SKIP_REASON)
     lacks = missing()
