@@ -290,7 +290,7 @@ def test_a_test_reading_the_default_runs_is_in_their_worker_group(default_runs, 
     (tests/conftest.py) and xdist sends the whole group to one worker, so the six lessons run once per
     test run, not once per worker. xdist reads the group from a suffix it writes into each test's id;
     pytest 9.2 keeps ids where that write no longer lands (pytest-xdist issue 1386), and then nothing
-    fails: every lesson simply runs on both workers (943 against 786 s here). This test fails instead.
+    fails: every lesson simply runs on both workers (~120 s of work twice). This test fails instead.
     Asking for default_runs runs no lesson (it is lazy)."""
     assert request.node.get_closest_marker("xdist_group").args == ("default-runs",)
     if not hasattr(request.config, "workerinput"):
