@@ -283,7 +283,6 @@ def test_the_viewer_tools_import_neither_the_app_nor_the_lessons():
     assert not {k: v for k, v in offenders.items() if v}, offenders
 
 
-
 def test_a_test_reading_the_default_runs_is_in_their_worker_group(default_runs, request):
     """The test run's split over its two pytest-xdist workers (pyproject.toml: -n 2 --dist loadgroup):
     every test that reads the session's default runs carries the ``default-runs`` group
@@ -295,7 +294,7 @@ def test_a_test_reading_the_default_runs_is_in_their_worker_group(default_runs, 
     assert request.node.get_closest_marker("xdist_group").args == ("default-runs",)
     if not hasattr(request.config, "workerinput"):
         pytest.skip("not under pytest-xdist: nothing is split")
-    if request.config.getvalue("dist") != "loadgroup" and not request.config.getvalue("loadgroup"):
+    if not request.config.getvalue("loadgroup"):   # what xdist sets on a worker for --dist loadgroup
         pytest.skip("pytest-xdist runs without --dist loadgroup here")
     assert request.node.nodeid.endswith("@default-runs"), (
         f"{request.node.nodeid}: pytest-xdist did not group it (pytest {pytest.__version__}); the default runs "
