@@ -71,10 +71,50 @@ def default_recordings(default_runs):
     return {lesson.id: tuple(default_runs(lesson.id)[:2]) for lesson in registry.all_lessons()}
 
 
+SHARED_SESSION = ("default_runs", "default_recordings")   # the session fixtures that make the default runs
+
+
+def shared_work(item) -> set:
+    """The shared work ``item`` reads: "default-runs" when it reads the default runs, and
+    "<module>::<name>" for each module-scoped fixture of its own test module it reads (a lesson run
+    under another integrator, a recording made once for the module's tests)."""
+    keys = set()
+    info = getattr(item, "_fixtureinfo", None)
+    for name in getattr(item, "fixturenames", ()):
+        if name in SHARED_SESSION:
+            keys.add("default-runs")
+            continue
+        for fdef in (info.name2fixturedefs.get(name, ()) if info is not None else ()):
+            if fdef.scope == "module" and fdef.baseid and fdef.baseid == item.nodeid.split("::")[0]:
+                keys.add(f"{fdef.baseid}::{name}")
+    return keys
+
+
 @pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(config, items):
-    """Under pytest-xdist (``--dist loadgroup``), every test that reads the shared default runs is
-    sent to the same worker, so the lessons are run once per session there, not once per worker."""
-    for item in items:
-        if {"default_runs", "default_recordings"} & set(getattr(item, "fixturenames", ())):
-            item.add_marker(pytest.mark.xdist_group("default-runs"))
+    """Under pytest-xdist (``--dist loadgroup``), the tests that share one piece of costly work are
+    sent to the same worker, so that work is done once per test run, not once on each worker: every
+    test that reads the default runs (group "default-runs": the six lessons are run once per
+    session there), and every test that reads a module-scoped fixture of its own module (group named
+    after the fixture). A test that reads two of them joins their groups into one (the default runs'
+    name wins): ``xdist`` gives a test one group."""
+    parent: dict = {}
+
+    def find(k):
+        while parent.setdefault(k, k) != k:
+            parent[k] = parent[parent[k]]
+            k = parent[k]
+        return k
+
+    def join(a, b):
+        root, other = sorted((find(a), find(b)), key=lambda k: (k != "default-runs", k))
+        if root != other:
+            parent[other] = root
+
+    shared = [(item, sorted(shared_work(item))) for item in items]
+    for _, keys in shared:
+        for k in keys[1:]:
+            join(keys[0], k)
+    for item, keys in shared:
+        if keys:
+            item.add_marker(pytest.mark.xdist_group(find(keys[0])))

@@ -299,3 +299,29 @@ def test_a_test_reading_the_default_runs_is_in_their_worker_group(default_runs, 
     assert request.node.nodeid.endswith("@default-runs"), (
         f"{request.node.nodeid}: pytest-xdist did not group it (pytest {pytest.__version__}); the default runs "
         "would be made on both workers - pyproject.toml pins the pytest versions whose ids xdist can group")
+
+
+def test_the_tests_sharing_a_module_fixture_run_on_one_worker(request):
+    """The same split for every module-scoped fixture of a test module (a lesson run again under
+    backward Euler, a recording made for the module): a module fixture is made once per worker that
+    runs one of its tests, so every test reading it carries one group, shared by all its readers
+    (tests/conftest.py), and under --dist loadgroup its id says so. Without it, area-springs' and
+    springs' backward-Euler stages were made three times each (the setup of three tests: ~65 s and
+    ~27 s of a ~430 s run)."""
+    from tests.conftest import shared_work
+    items = request.session.items
+    groups: dict = {}
+    for item in items:
+        work = shared_work(item)
+        if not work:
+            continue
+        marker = item.get_closest_marker("xdist_group")
+        assert marker is not None, f"{item.nodeid} shares {sorted(work)} but has no worker group"
+        for key in work:
+            groups.setdefault(key, set()).add(marker.args[0])
+        if hasattr(request.config, "workerinput") and request.config.getvalue("loadgroup"):
+            assert item.nodeid.endswith("@" + marker.args[0]), f"{item.nodeid}: not grouped by pytest-xdist"
+    split = {key: names for key, names in groups.items() if len(names) > 1}
+    assert not split, f"the readers of one fixture are in several groups: {split}"
+    if any(i.nodeid.startswith("tests/lessons/test_lesson_area_springs.py") for i in items):
+        assert "tests/lessons/test_lesson_area_springs.py::be_stages" in groups
