@@ -237,7 +237,12 @@ def test_library_target_says_the_techniques_floor_round_by_round(tmp_path):
     assert "alone 0.62 (0.60-0.70)" in line    # mixed / f64 per round, median 0.625
     assert "adds 20% (10% to 20%)" in line
     assert "allows 28% (14% to 33%): 3 of 4 rounds at or under it" in line   # 0.8 / floor - 1 per round
+    assert "already above" not in line         # every round's technique alone is under 0.8
     assert "why" not in doc_of(True, "two")    # not timed in the same rounds: no round-by-round reasons
+    mixed[1] = 0.85                            # one round where the library's f32 path alone is above the goal
+    engine[1] = 0.9
+    line = doc_of(False, "three")["why"][0]
+    assert "3 of 4 rounds at or under it. In 1 of 4 rounds the technique alone was already above 0.8" in line
 
 
 def test_a_rerun_is_checked_against_the_reference_spread(tmp_path):

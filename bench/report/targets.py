@@ -227,11 +227,15 @@ def _why_library(rows, side, goal) -> list:
     def band(v, pct=False):
         med, lo, hi = spread(v)
         return (f"{med:.0%} ({lo:.0%} to {hi:.0%})" if pct else f"{med:.2f} ({lo:.2f}-{hi:.2f})")
+    above = sum(x > goal for x in floor)
+    beyond = (f" In {above} of {len(floor)} rounds the technique alone was already above {goal:g}: no engine using "
+              f"it can be at or under {goal:g} in every round of this run (the spread is the library's own, round "
+              f"to round)." if above else "")
     return [f"{side}^2, round by round ({len(floor)} rounds): the engine's technique called alone (f32 factorisation "
             f"+ f64 refinement) against PARDISO's f64 factorisation + solve alone {band(floor)}, the lowest ratio an "
             f"engine using that technique can reach; the engine adds {band([a - 1.0 for a in added], True)} to the "
             f"technique (assembly, forces, update, its launches), and to stay at or under {goal:g} a round allows "
-            f"{band(allowed, True)}: {met} of {len(floor)} rounds at or under it."]
+            f"{band(allowed, True)}: {met} of {len(floor)} rounds at or under it.{beyond}"]
 
 
 def _why_sequence(ratios) -> list:
