@@ -85,7 +85,7 @@ def shared_work(item) -> set:
             keys.add("default-runs")
             continue
         for fdef in (info.name2fixturedefs.get(name, ()) if info is not None else ()):
-            if fdef.scope == "module" and fdef.baseid and fdef.baseid == item.nodeid.split("::")[0]:
+            if fdef.scope == "module" and fdef.baseid == item.nodeid.split("::")[0]:
                 keys.add(f"{fdef.baseid}::{name}")
     return keys
 

@@ -283,6 +283,12 @@ def test_the_viewer_tools_import_neither_the_app_nor_the_lessons():
     assert not {k: v for k, v in offenders.items() if v}, offenders
 
 
+def _grouped_by_xdist(config) -> bool:
+    """True on a pytest-xdist worker under --dist loadgroup (the flag xdist sets there), where a grouped
+    test's id carries its group."""
+    return hasattr(config, "workerinput") and bool(config.getvalue("loadgroup"))
+
+
 def test_a_test_reading_the_default_runs_is_in_their_worker_group(default_runs, request):
     """The test run's split over its two pytest-xdist workers (pyproject.toml: -n 2 --dist loadgroup):
     every test that reads the session's default runs carries the ``default-runs`` group
@@ -294,7 +300,7 @@ def test_a_test_reading_the_default_runs_is_in_their_worker_group(default_runs, 
     assert request.node.get_closest_marker("xdist_group").args == ("default-runs",)
     if not hasattr(request.config, "workerinput"):
         pytest.skip("not under pytest-xdist: nothing is split")
-    if not request.config.getvalue("loadgroup"):   # what xdist sets on a worker for --dist loadgroup
+    if not _grouped_by_xdist(request.config):
         pytest.skip("pytest-xdist runs without --dist loadgroup here")
     assert request.node.nodeid.endswith("@default-runs"), (
         f"{request.node.nodeid}: pytest-xdist did not group it (pytest {pytest.__version__}); the default runs "
@@ -319,7 +325,7 @@ def test_the_tests_sharing_a_module_fixture_run_on_one_worker(request):
         assert marker is not None, f"{item.nodeid} shares {sorted(work)} but has no worker group"
         for key in work:
             groups.setdefault(key, set()).add(marker.args[0])
-        if hasattr(request.config, "workerinput") and request.config.getvalue("loadgroup"):
+        if _grouped_by_xdist(request.config):
             assert item.nodeid.endswith("@" + marker.args[0]), f"{item.nodeid}: not grouped by pytest-xdist"
     split = {key: names for key, names in groups.items() if len(names) > 1}
     assert not split, f"the readers of one fixture are in several groups: {split}"
