@@ -101,7 +101,8 @@ def parse_args(argv):
         "latest.* copies."))
     ap.add_argument("--quick", action="store_true",
                     help="the full run's 2-thread f64 rows up to 128^2, the headline at 32^2 and 64^2 (about "
-                         "6-8 minutes on the quiet 2-core machine, half of them grading a class: 364-488 s measured)")
+                         "6-12 minutes on the quiet 2-core machine, about half of them grading a class: 364-488 s "
+                         "measured on an AMD EPYC, 685 s on an Intel Xeon)")
     ap.add_argument("--out", default=str(BENCH_DIR / "results"), help="output directory (default bench/results)")
     ap.add_argument("--skip", default="", help=f"comma list of parts to leave out: {', '.join(PARTS)}")
     ap.add_argument("--only", default="", help="comma list of the only parts to run")
